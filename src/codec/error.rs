@@ -1,0 +1,113 @@
+//! Codec errors, split by direction as rust-mavlink does: [`DecodeError`] for bytes
+//! coming in, [`EncodeError`] for bytes going out. Messages name the thing at fault
+//! (message type and field) because they end up in `/api/v1/status` `last_error`.
+
+use thiserror::Error;
+
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum DecodeError {
+    #[error("payload truncated: needed {needed} bytes at offset {offset}, payload has {len}")]
+    Truncated {
+        needed: usize,
+        offset: usize,
+        len: usize,
+    },
+    #[error(
+        "bad CDR encapsulation header {0:02x?} (expected 00 01 little-endian or 00 00 big-endian)"
+    )]
+    BadEncapsulation([u8; 2]),
+    #[error("{field}: string is not valid UTF-8 or not NUL-terminated")]
+    BadString { field: String },
+    #[error("{field}: sequence length {len} exceeds the payload")]
+    BadLength { field: String, len: usize },
+    #[error("{field} is {value} (NaN/Inf not allowed)")]
+    NonFinite { field: String, value: f64 },
+    #[error("{field} = {value} is out of range: {reason}")]
+    OutOfRange {
+        field: String,
+        value: f64,
+        reason: &'static str,
+    },
+    #[error("invalid JSON: {0}")]
+    Json(String),
+    #[error("{message}: missing field `{field}`")]
+    MissingField { message: String, field: String },
+    #[error("{message}: field `{field}` has the wrong type (expected {expected})")]
+    WrongType {
+        message: String,
+        field: String,
+        expected: &'static str,
+    },
+    #[error("unsupported message `{0}`")]
+    UnsupportedMessage(String),
+    #[error("MAVLink frame rejected: {0}")]
+    Mavlink(String),
+    #[error("input has a ROS format but no ROS message type")]
+    NoRosType,
+    #[error("payload is not UTF-8 text")]
+    NotUtf8,
+}
+
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum EncodeError {
+    #[error("{field} is {value}: refusing to encode a non-finite value")]
+    NonFinite { field: String, value: f64 },
+    #[error("{field} = {value} does not fit the wire type")]
+    OutOfRange { field: String, value: f64 },
+    #[error("MAVLink serialisation failed: {0}")]
+    Mavlink(String),
+    #[error("cannot encode: {0}")]
+    Unsupported(String),
+}
+
+impl DecodeError {
+    /// A short machine-readable kind for counters and logs.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            DecodeError::Truncated { .. } => "truncated",
+            DecodeError::BadEncapsulation(_) => "bad_encapsulation",
+            DecodeError::BadString { .. } => "bad_string",
+            DecodeError::BadLength { .. } => "bad_length",
+            DecodeError::NonFinite { .. } => "non_finite",
+            DecodeError::OutOfRange { .. } => "out_of_range",
+            DecodeError::Json(_) => "json",
+            DecodeError::MissingField { .. } => "missing_field",
+            DecodeError::WrongType { .. } => "wrong_type",
+            DecodeError::UnsupportedMessage(_) => "unsupported_message",
+            DecodeError::Mavlink(_) => "mavlink",
+            DecodeError::NoRosType => "no_ros_type",
+            DecodeError::NotUtf8 => "not_utf8",
+        }
+    }
+}
+
+/// Checks shared by all codecs: a required float must be finite.
+pub fn finite(field: &str, value: f64) -> Result<f64, DecodeError> {
+    if value.is_finite() {
+        Ok(value)
+    } else {
+        Err(DecodeError::NonFinite {
+            field: field.to_string(),
+            value,
+        })
+    }
+}
+
+/// A required float must be finite and inside `[lo, hi]`.
+pub fn in_range(
+    field: &str,
+    value: f64,
+    lo: f64,
+    hi: f64,
+    reason: &'static str,
+) -> Result<f64, DecodeError> {
+    let v = finite(field, value)?;
+    if v < lo || v > hi {
+        return Err(DecodeError::OutOfRange {
+            field: field.to_string(),
+            value: v,
+            reason,
+        });
+    }
+    Ok(v)
+}

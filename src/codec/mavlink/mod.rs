@@ -1,0 +1,174 @@
+//! MAVLink in both forms skyfuse meets it on Zenoh:
+//! - mavlink-server's JSON (`zenoh://` endpoint, keys `mavlink/<sys>/<comp>/<NAME>` and
+//!   `mavlink/out`): rust-mavlink **0.16**'s serde form written by `json5::to_string`
+//!   (see DESIGN.md "Inputs"), current and pre-0.16 (`{"bits":N}`, char[] as bytes) forms;
+//! - raw MAVLink v1/v2 frames (`zenohraw://`, other bridges), CRC-checked.
+//!
+//! Both decode through one path: a message becomes a JSON object (JSON text after a
+//! JSON5 pre-scan; a frame through rust-mavlink 0.21 and `serde_json::to_value`, whose
+//! form matches 0.16's for everything read here, see the tests) and one mapping per
+//! message turns it into a sample, NED/FRD → ENU/FLU, MAVLink units → SI.
+//!
+//! Needs rust-mavlink's `mav2-message-extensions` feature: without it 0.21 drops every
+//! extension field (ODOMETRY `reset_counter`/`quality`, GPS_RAW_INT `h_acc`, OPTICAL_FLOW
+//! `flow_rate_*`, VISION_POSITION_ESTIMATE `covariance`/`reset_counter`, ...), both when
+//! parsing frames and when encoding.
+
+mod fields;
+mod frame;
+mod json5;
+mod map;
+mod to_message;
+
+pub use to_message::sample_to_message;
+
+use crate::codec::error::{DecodeError, EncodeError};
+use crate::sample::Decoded;
+use ::mavlink::dialects::common::MavMessage;
+use ::mavlink::{MAVLinkV2MessageRaw, MavHeader, Message};
+use fields::Fields;
+use map::SensorMsg;
+use serde_json::{Map, Value};
+
+/// One mavlink-server JSON payload (`{"header":{...},"message":{"type":"NAME",...}}`).
+/// `Ok(None)` for valid messages that carry no sensor data we use (HEARTBEAT, and any
+/// name we do not know: mavlink-server forwards every dialect's messages).
+pub fn decode_json(payload: &[u8]) -> Result<Option<Decoded>, DecodeError> {
+    const WHAT: &str = "mavlink-server JSON";
+    let text = std::str::from_utf8(payload).map_err(|_| DecodeError::NotUtf8)?;
+    let strict = json5::to_strict_json(text);
+    let root: Value =
+        serde_json::from_str(&strict).map_err(|e| DecodeError::Json(e.to_string()))?;
+    let wrong = |field: &str, expected: &'static str| DecodeError::WrongType {
+        message: WHAT.to_string(),
+        field: field.to_string(),
+        expected,
+    };
+    let missing = |field: &str| DecodeError::MissingField {
+        message: WHAT.to_string(),
+        field: field.to_string(),
+    };
+    let root = root
+        .as_object()
+        .ok_or_else(|| wrong("(root)", "an object"))?;
+    let header = root
+        .get("header")
+        .ok_or_else(|| missing("header"))?
+        .as_object()
+        .ok_or_else(|| wrong("header", "an object"))?;
+    let id = |field: &str| -> Result<u8, DecodeError> {
+        let v = header.get(field).ok_or_else(|| missing(field))?;
+        v.as_u64()
+            .and_then(|n| u8::try_from(n).ok())
+            .ok_or_else(|| wrong(field, "an integer 0..=255"))
+    };
+    let origin = (id("system_id")?, id("component_id")?);
+    let message = root
+        .get("message")
+        .ok_or_else(|| missing("message"))?
+        .as_object()
+        .ok_or_else(|| wrong("message", "an object"))?;
+    let name = message
+        .get("type")
+        .ok_or_else(|| missing("message.type"))?
+        .as_str()
+        .ok_or_else(|| wrong("message.type", "a message name"))?;
+    let Some(sensor) = SensorMsg::from_name(name) else {
+        return Ok(None);
+    };
+    map_message(sensor, message, false, origin)
+}
+
+/// Raw MAVLink v1/v2 bytes: one or more whole frames, CRC-checked against the common
+/// dialect. Good frames are decoded and pushed to `out`; a bad frame (CRC, truncation,
+/// stray bytes) costs only itself: the scan goes on and the first error is returned.
+/// Messages outside the common dialect (ardupilotmega's on an ArduPilot link) are skipped.
+pub fn decode_raw(payload: &[u8], out: &mut Vec<Decoded>) -> Result<(), DecodeError> {
+    decode_raw_filtered(payload, &|_| true, out)
+}
+
+/// [`decode_raw`] keeping only the messages whose name `keep` accepts: a raw stream
+/// carries every message, and an input usually wants one (HIGHRES_IMU, not also
+/// SCALED_IMU and RAW_IMU of other IMUs), as a JSON input picks one by key.
+pub fn decode_raw_filtered(
+    payload: &[u8],
+    keep: &dyn Fn(&str) -> bool,
+    out: &mut Vec<Decoded>,
+) -> Result<(), DecodeError> {
+    frame::for_each_frame(payload, |fr| {
+        let Some(sensor) = SensorMsg::from_id(fr.msg_id) else {
+            return Ok(());
+        };
+        if !keep(sensor.name()) {
+            return Ok(());
+        }
+        let msg = MavMessage::parse(fr.version, fr.msg_id, fr.payload)
+            .map_err(|e| DecodeError::Mavlink(format!("{}: {e}", sensor.name())))?;
+        let value = serde_json::to_value(&msg)
+            .map_err(|e| DecodeError::Mavlink(format!("{}: {e}", sensor.name())))?;
+        let obj = value.as_object().ok_or_else(|| {
+            DecodeError::Mavlink(format!("{}: not a struct in serde form", sensor.name()))
+        })?;
+        let v1 = fr.version == ::mavlink::MavlinkVersion::V1;
+        if let Some(d) = map_message(sensor, obj, v1, (fr.system_id, fr.component_id))? {
+            out.push(d);
+        }
+        Ok(())
+    })
+}
+
+fn map_message(
+    sensor: SensorMsg,
+    message: &Map<String, Value>,
+    v1: bool,
+    origin: (u8, u8),
+) -> Result<Option<Decoded>, DecodeError> {
+    let fields = Fields::new(sensor.name(), message, v1);
+    Ok(
+        map::decode(sensor, &fields)?.map(|(stamp_us, data)| Decoded {
+            stamp_us,
+            mav_origin: Some(origin),
+            data,
+        }),
+    )
+}
+
+fn check_header(header: &MavHeader) -> Result<u8, EncodeError> {
+    // mavlink-server reads the id as u8, and a MAVLink 2 frame with a larger one needs
+    // rust-mavlink's non-standard 32-bit system id flag that autopilots reject.
+    u8::try_from(header.system_id).map_err(|_| EncodeError::OutOfRange {
+        field: "header.system_id".into(),
+        value: f64::from(header.system_id),
+    })
+}
+
+/// mavlink-server's exact JSON text for `msg` (to publish on `mavlink/in`): header
+/// `{system_id, component_id, sequence, message_id}` and the message in rust-mavlink
+/// 0.16's serde form as `json5::to_string` writes it (fields in wire order, extensions
+/// last, `type` as `mavtype`, enums `{"type":NAME}`, bitmasks `"A | B"`, floats shortest
+/// with `1.0` as `1`, NaN bare).
+pub fn encode_json(header: MavHeader, msg: &MavMessage) -> Result<String, EncodeError> {
+    let system_id = check_header(&header)?;
+    let mut out = String::with_capacity(256);
+    out.push_str(&format!(
+        "{{\"header\":{{\"system_id\":{system_id},\"component_id\":{},\"sequence\":{},\"message_id\":{}}},\"message\":",
+        header.component_id,
+        header.sequence,
+        msg.message_id()
+    ));
+    json5::to_json5(msg, &mut out)
+        .map_err(|e| EncodeError::Mavlink(format!("{}: {e}", msg.message_name())))?;
+    out.push('}');
+    Ok(out)
+}
+
+/// `msg` as one MAVLink 2 frame (unsigned, payload zero-truncated as the spec requires).
+pub fn encode_raw_v2(header: MavHeader, msg: &MavMessage) -> Result<Vec<u8>, EncodeError> {
+    check_header(&header)?;
+    let mut raw = MAVLinkV2MessageRaw::new();
+    raw.serialize_message(header, msg);
+    Ok(raw.raw_bytes().to_vec())
+}
+
+#[cfg(test)]
+mod tests;

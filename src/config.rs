@@ -1,0 +1,514 @@
+//! Configuration: one TOML file, one serde struct tree, unknown keys rejected by name.
+//!
+//! Every key is documented in `config/default.toml`, which is also compiled in as the
+//! built-in default ([`Config::builtin_default`]). Defaults live here as named
+//! constants. Environment variables override the file for container use:
+//! `SKYFUSE__<SECTION>__<KEY>=value` (double underscores separate levels, array
+//! elements by index: `SKYFUSE__INPUTS__0__KEY=gps/fix`); the value is read as a TOML
+//! value when it parses as one (`true`, `10`, `["a","b"]`) and as a string otherwise.
+
+use crate::codec::{Format, RosType};
+use crate::sample::SensorKind;
+use serde::{Deserialize, Serialize};
+use std::collections::HashSet;
+use std::path::Path;
+use thiserror::Error;
+
+pub const DEFAULT_VEHICLE: &str = "vehicle1";
+pub const DEFAULT_HTTP_BIND: &str = "0.0.0.0:8080";
+pub const DEFAULT_CHANNEL_CAPACITY: usize = 4096;
+pub const DEFAULT_MAV_SYSTEM_ID: u8 = 1;
+/// MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY: the onboard component id we send as.
+pub const DEFAULT_MAV_COMPONENT_ID: u8 = 197;
+/// A sensor is stale after this many expected periods without data…
+pub const STALE_PERIODS: f64 = 5.0;
+/// …but never sooner than this (slow sensors jitter).
+pub const STALE_MIN_MS: f64 = 250.0;
+/// Errors of one input are logged at most once per this interval.
+pub const ERROR_LOG_INTERVAL_MS: u64 = 5000;
+pub const ENV_PREFIX: &str = "SKYFUSE__";
+const REDACTED: &str = "<redacted>";
+
+/// The built-in default configuration, the same text as `config/default.toml`.
+pub const DEFAULT_TOML: &str = include_str!("../config/default.toml");
+
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    #[error("cannot read config file {path}: {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("{origin}: {message}")]
+    Parse { origin: String, message: String },
+    #[error("environment variable {var}: {message}")]
+    Env { var: String, message: String },
+    #[error("{origin}: {message}")]
+    Invalid { origin: String, message: String },
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    #[serde(default)]
+    pub service: ServiceConfig,
+    #[serde(default)]
+    pub zenoh: ZenohConfig,
+    #[serde(default)]
+    pub http: HttpConfig,
+    #[serde(default)]
+    pub ingest: IngestConfig,
+    #[serde(default)]
+    pub mavlink: MavlinkConfig,
+    #[serde(default)]
+    pub inputs: Vec<InputConfig>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServiceConfig {
+    pub vehicle: String,
+}
+
+impl Default for ServiceConfig {
+    fn default() -> Self {
+        Self {
+            vehicle: DEFAULT_VEHICLE.to_string(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum ZenohMode {
+    Peer,
+    Client,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct ZenohConfig {
+    pub mode: ZenohMode,
+    pub listen: Vec<String>,
+    pub connect: Vec<String>,
+    pub multicast_scouting: bool,
+    /// Optional path to a full Zenoh JSON5 config; the keys above are applied on top.
+    pub config_file: Option<String>,
+}
+
+impl Default for ZenohConfig {
+    fn default() -> Self {
+        Self {
+            mode: ZenohMode::Peer,
+            listen: Vec::new(),
+            connect: Vec::new(),
+            multicast_scouting: true,
+            config_file: None,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct HttpConfig {
+    pub bind: String,
+    /// Token for state-changing controls; empty disables them. Never shown by the API.
+    pub token: String,
+}
+
+impl Default for HttpConfig {
+    fn default() -> Self {
+        Self {
+            bind: DEFAULT_HTTP_BIND.to_string(),
+            token: String::new(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct IngestConfig {
+    /// Capacity of the queue from the Zenoh callbacks to the estimator task.
+    pub channel_capacity: usize,
+}
+
+impl Default for IngestConfig {
+    fn default() -> Self {
+        Self {
+            channel_capacity: DEFAULT_CHANNEL_CAPACITY,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct MavlinkConfig {
+    /// Our MAVLink system id (the vehicle's).
+    pub system_id: u8,
+    /// Our MAVLink component id; MAVLink input from (system_id, component_id) is our
+    /// own output coming back through a bridge and is skipped.
+    pub component_id: u8,
+}
+
+impl Default for MavlinkConfig {
+    fn default() -> Self {
+        Self {
+            system_id: DEFAULT_MAV_SYSTEM_ID,
+            component_id: DEFAULT_MAV_COMPONENT_ID,
+        }
+    }
+}
+
+fn default_true() -> bool {
+    true
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InputConfig {
+    /// Unique name of this sensor input (`gps`, `t265`, …).
+    pub id: String,
+    pub kind: SensorKind,
+    /// Zenoh key expression (for `ros1`: the topic; see [`InputConfig::key_exprs`]).
+    pub key: String,
+    pub format: Format,
+    /// ROS message type for `ros2`/`ros1` inputs.
+    #[serde(rename = "type", default, skip_serializing_if = "Option::is_none")]
+    pub ros_type: Option<RosType>,
+    /// Expected rate, Hz: drives the staleness and rate checks.
+    pub rate_hz: f64,
+    #[serde(default = "default_true")]
+    pub enabled: bool,
+}
+
+impl InputConfig {
+    /// The key expressions to subscribe to. zenoh-plugin-ros1 publishes on
+    /// `<hex(type)>/<md5>/<namespace>/<topic>` (namespace chunk `*` by default since
+    /// 2025; older releases have none), so a ROS 1 input subscribes to both shapes.
+    pub fn key_exprs(&self) -> Vec<String> {
+        match self.format {
+            Format::Ros1 => {
+                let topic = self.key.trim_start_matches('/');
+                vec![format!("*/*/{topic}"), format!("*/*/*/{topic}")]
+            }
+            _ => vec![self.key.clone()],
+        }
+    }
+
+    /// Time without data after which this input is stale, ms.
+    pub fn stale_after_ms(&self) -> f64 {
+        (STALE_PERIODS * 1000.0 / self.rate_hz).max(STALE_MIN_MS)
+    }
+}
+
+impl Config {
+    /// The compiled-in default (identical to `config/default.toml`).
+    pub fn builtin_default() -> Result<Config, ConfigError> {
+        Self::from_toml_str(DEFAULT_TOML, "built-in default config")
+    }
+
+    /// Parse and validate TOML text. `origin` names the source in errors.
+    pub fn from_toml_str(text: &str, origin: &str) -> Result<Config, ConfigError> {
+        let value: toml::Value = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            origin: origin.to_string(),
+            message: e.to_string(),
+        })?;
+        Self::from_value(value, origin)
+    }
+
+    fn from_value(value: toml::Value, origin: &str) -> Result<Config, ConfigError> {
+        let cfg: Config = value
+            .try_into()
+            .map_err(|e: toml::de::Error| ConfigError::Parse {
+                origin: origin.to_string(),
+                message: e.to_string(),
+            })?;
+        cfg.validate().map_err(|message| ConfigError::Invalid {
+            origin: origin.to_string(),
+            message,
+        })?;
+        Ok(cfg)
+    }
+
+    /// Load a file (or the built-in default when `path` is `None`), then apply
+    /// environment overrides from `env`.
+    pub fn load(
+        path: Option<&Path>,
+        env: impl IntoIterator<Item = (String, String)>,
+    ) -> Result<Config, ConfigError> {
+        let (text, origin) = match path {
+            Some(p) => (
+                std::fs::read_to_string(p).map_err(|source| ConfigError::Read {
+                    path: p.display().to_string(),
+                    source,
+                })?,
+                p.display().to_string(),
+            ),
+            None => (
+                DEFAULT_TOML.to_string(),
+                "built-in default config".to_string(),
+            ),
+        };
+        let mut value: toml::Value = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+            origin: origin.clone(),
+            message: e.to_string(),
+        })?;
+        let mut overridden = Vec::new();
+        for (var, raw) in env {
+            let Some(path) = var.strip_prefix(ENV_PREFIX) else {
+                continue;
+            };
+            apply_env_override(&mut value, path, &raw).map_err(|message| ConfigError::Env {
+                var: var.clone(),
+                message,
+            })?;
+            overridden.push(var);
+        }
+        let origin = if overridden.is_empty() {
+            origin
+        } else {
+            format!("{origin} with overrides {}", overridden.join(", "))
+        };
+        Self::from_value(value, &origin)
+    }
+
+    /// Cross-field checks serde cannot express.
+    pub fn validate(&self) -> Result<(), String> {
+        let mut ids = HashSet::new();
+        for (i, input) in self.inputs.iter().enumerate() {
+            let name = if input.id.is_empty() {
+                format!("inputs[{i}]")
+            } else {
+                format!("input `{}`", input.id)
+            };
+            if input.id.is_empty() {
+                return Err(format!("{name}: `id` must not be empty"));
+            }
+            if !ids.insert(input.id.as_str()) {
+                return Err(format!("{name}: duplicate input id"));
+            }
+            if input.key.trim().is_empty() {
+                return Err(format!("{name}: `key` must not be empty"));
+            }
+            for k in input.key_exprs() {
+                if let Err(e) = zenoh::key_expr::KeyExpr::try_from(k.as_str()) {
+                    return Err(format!(
+                        "{name}: `key` {k:?} is not a valid Zenoh key expression: {e}"
+                    ));
+                }
+            }
+            if input.format.needs_ros_type() && input.ros_type.is_none() {
+                return Err(format!(
+                    "{name}: format `{}` needs `type` (a ROS message type such as \"sensor_msgs/msg/NavSatFix\")",
+                    input.format
+                ));
+            }
+            if !input.format.needs_ros_type() && input.ros_type.is_some() {
+                return Err(format!(
+                    "{name}: `type` is only meaningful for ros2/ros1 inputs, not `{}`",
+                    input.format
+                ));
+            }
+            if !(input.rate_hz.is_finite() && input.rate_hz > 0.0 && input.rate_hz <= 10_000.0) {
+                return Err(format!(
+                    "{name}: `rate_hz` = {} must be in (0, 10000]",
+                    input.rate_hz
+                ));
+            }
+        }
+        if self.ingest.channel_capacity == 0 {
+            return Err("ingest.channel_capacity must be at least 1".into());
+        }
+        if self.http.bind.parse::<std::net::SocketAddr>().is_err() {
+            return Err(format!(
+                "http.bind = {:?} is not an address such as 0.0.0.0:8080",
+                self.http.bind
+            ));
+        }
+        for e in self.zenoh.listen.iter().chain(&self.zenoh.connect) {
+            if !e.contains('/') {
+                return Err(format!(
+                    "zenoh endpoint {e:?} is not of the form proto/address, e.g. tcp/192.168.1.10:7447"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The configuration as JSON with secrets replaced, for `GET /api/v1/config`.
+    pub fn redacted_json(&self) -> serde_json::Value {
+        let mut c = self.clone();
+        if !c.http.token.is_empty() {
+            c.http.token = REDACTED.to_string();
+        }
+        serde_json::to_value(&c).unwrap_or(serde_json::Value::Null)
+    }
+}
+
+/// Apply one `SKYFUSE__A__B=value` override to the TOML tree.
+fn apply_env_override(root: &mut toml::Value, path: &str, raw: &str) -> Result<(), String> {
+    let parts: Vec<String> = path.split("__").map(|s| s.to_ascii_lowercase()).collect();
+    if parts.iter().any(|p| p.is_empty()) {
+        return Err("empty key segment (use double underscores between levels)".into());
+    }
+    let new_value = parse_env_value(raw);
+    let mut cur = root;
+    for (i, part) in parts.iter().enumerate() {
+        let last = i + 1 == parts.len();
+        match cur {
+            toml::Value::Table(t) => {
+                if last {
+                    t.insert(part.clone(), new_value);
+                    return Ok(());
+                }
+                // Missing sections are created; unknown names are rejected later by
+                // deny_unknown_fields, naming the key.
+                cur = t
+                    .entry(part.clone())
+                    .or_insert_with(|| toml::Value::Table(Default::default()));
+            }
+            toml::Value::Array(a) => {
+                let idx: usize = part
+                    .parse()
+                    .map_err(|_| format!("`{part}` is not an array index"))?;
+                let len = a.len();
+                let slot = a
+                    .get_mut(idx)
+                    .ok_or_else(|| format!("index {idx} is past the end (length {len})"))?;
+                if last {
+                    *slot = new_value;
+                    return Ok(());
+                }
+                cur = slot;
+            }
+            _ => return Err(format!("`{part}` is below a value that is not a table")),
+        }
+    }
+    Ok(())
+}
+
+fn parse_env_value(raw: &str) -> toml::Value {
+    // Parse as a TOML value by wrapping it in a one-key document.
+    match toml::from_str::<toml::Table>(&format!("v = {raw}")) {
+        Ok(mut t) => t
+            .remove("v")
+            .unwrap_or_else(|| toml::Value::String(raw.into())),
+        Err(_) => toml::Value::String(raw.to_string()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn env(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
+        pairs
+            .iter()
+            .map(|(a, b)| (a.to_string(), b.to_string()))
+            .collect()
+    }
+
+    #[test]
+    fn default_file_parses_and_has_the_seed_topics() {
+        let c = Config::builtin_default().expect("default config");
+        let keys: Vec<&str> = c.inputs.iter().map(|i| i.key.as_str()).collect();
+        for k in ["gps/fix", "camera/odom/sample", "mavros/imu/data"] {
+            assert!(keys.contains(&k), "default config lacks {k}: {keys:?}");
+        }
+        assert!(keys.iter().any(|k| k.starts_with("mavlink/")));
+        assert_eq!(c.mavlink.component_id, 197);
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let err = Config::from_toml_str("[zenoh]\nmode = \"peer\"\nlisten_to = []\n", "test.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("listen_to"), "{err}");
+        assert!(err.contains("test.toml"), "{err}");
+        let err = Config::from_toml_str(
+            "[[inputs]]\nid=\"a\"\nkind=\"imu\"\nkey=\"k\"\nformat=\"json\"\nrate_hz=1\nrat_hz=2\n",
+            "t",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("rat_hz"), "{err}");
+    }
+
+    #[test]
+    fn ros_input_without_type_is_rejected() {
+        let err = Config::from_toml_str(
+            "[[inputs]]\nid=\"gps\"\nkind=\"gnss\"\nkey=\"gps/fix\"\nformat=\"ros2\"\nrate_hz=10\n",
+            "t",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("input `gps`") && err.contains("type"), "{err}");
+    }
+
+    #[test]
+    fn bad_key_expression_and_duplicate_ids_are_rejected() {
+        let base = "[[inputs]]\nid=\"a\"\nkind=\"imu\"\nformat=\"json\"\nrate_hz=1\n";
+        let err = Config::from_toml_str(&format!("{base}key=\"a/**b\"\n"), "t")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("not a valid Zenoh key expression"), "{err}");
+        let two = format!("{base}key=\"a\"\n{base}key=\"b\"\n");
+        let err = Config::from_toml_str(&two, "t").unwrap_err().to_string();
+        assert!(err.contains("duplicate"), "{err}");
+    }
+
+    #[test]
+    fn env_overrides_apply_and_unknown_env_keys_are_named() {
+        let c = Config::load(
+            None,
+            env(&[
+                ("SKYFUSE__ZENOH__MODE", "client"),
+                ("SKYFUSE__ZENOH__CONNECT", "[\"tcp/10.0.0.1:7447\"]"),
+                ("SKYFUSE__HTTP__TOKEN", "s3cret"),
+                ("SKYFUSE__INPUTS__0__RATE_HZ", "42"),
+                ("PATH", "/usr/bin"),
+            ]),
+        )
+        .expect("overrides");
+        assert_eq!(c.zenoh.mode, ZenohMode::Client);
+        assert_eq!(c.zenoh.connect, vec!["tcp/10.0.0.1:7447".to_string()]);
+        assert_eq!(c.inputs[0].rate_hz, 42.0);
+        assert_eq!(c.http.token, "s3cret");
+        let red = c.redacted_json().to_string();
+        assert!(!red.contains("s3cret"), "{red}");
+
+        let err = Config::load(None, env(&[("SKYFUSE__ZENOH__MODEE", "client")]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("modee") && err.contains("SKYFUSE__ZENOH__MODEE"),
+            "{err}"
+        );
+        let err = Config::load(None, env(&[("SKYFUSE__INPUTS__99__KEY", "x")]))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("past the end"), "{err}");
+    }
+
+    #[test]
+    fn missing_file_names_the_path() {
+        let err = Config::load(Some(Path::new("/nonexistent/skyfuse.toml")), Vec::new())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("/nonexistent/skyfuse.toml"), "{err}");
+    }
+
+    #[test]
+    fn ros1_inputs_subscribe_with_and_without_namespace_chunk() {
+        let c = Config::from_toml_str(
+            "[[inputs]]\nid=\"gps\"\nkind=\"gnss\"\nkey=\"/gps/fix\"\nformat=\"ros1\"\ntype=\"sensor_msgs/NavSatFix\"\nrate_hz=10\n",
+            "t",
+        )
+        .expect("ros1 config");
+        assert_eq!(
+            c.inputs[0].key_exprs(),
+            vec!["*/*/gps/fix", "*/*/*/gps/fix"]
+        );
+    }
+}

@@ -1,0 +1,581 @@
+//! The Kalman filter maths: state layout, IMU-driven prediction, Joseph-form update with
+//! Mahalanobis (chi²) gating, and the covariance surgery that resets and odometry
+//! segments need.
+//!
+//! State (world ENU): position p (0..3), velocity v (3..6), accelerometer bias in the
+//! body frame b_a (6..9), terrain height z_t (9: the ground under the vehicle; 0 by
+//! definition at the take-off pose, uncertain once GNSS anchors the frame at the first
+//! fix, whose altitude error is the terrain's height in that frame; range measures
+//! p_z − z_t), GNSS error b_g (10..13: the slowly varying part of the GNSS error,
+//! first-order Gauss–Markov, so averaging many fixes does not make the filter
+//! over-confident), then one 3-state block per visual-odometry source: the offset
+//! of that source's aligned frame from the world (its drift), so odometry positions are
+//! modelled as `z = p + b`. A block starts fully correlated with p (b = 0,
+//! P_bb = P_pp, P_bp = -P_pp), which makes the first measurements carry only relative
+//! information, as they should.
+
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+
+/// Standard gravity, m/s².
+pub const GRAVITY: f64 = 9.806_65;
+pub const IDX_P: usize = 0;
+pub const IDX_V: usize = 3;
+pub const IDX_BA: usize = 6;
+pub const IDX_TERRAIN: usize = 9;
+pub const IDX_BG: usize = 10;
+pub const CORE_STATES: usize = 13;
+/// Smallest variance kept on the diagonal (numerical floor).
+const VAR_FLOOR: f64 = 1e-12;
+
+/// Result of one measurement update.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UpdateOutcome {
+    pub innovation: Vec<f64>,
+    /// Innovation variances (diagonal of S).
+    pub innovation_var: Vec<f64>,
+    /// Normalised innovation squared yᵀS⁻¹y.
+    pub nis: f64,
+    /// NIS over the gate threshold: > 1 means rejected.
+    pub test_ratio: f64,
+    pub accepted: bool,
+}
+
+/// The filter: state vector, covariance, and the odometry offset blocks.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ekf {
+    pub x: DVector<f64>,
+    pub p: DMatrix<f64>,
+    /// (source id, first index) of each odometry offset block.
+    pub blocks: Vec<(String, usize)>,
+    /// Terrain height random walk, m/√s.
+    pub terrain_rw: f64,
+    /// GNSS slow error: stationary 1σ per axis (m) and correlation time (s).
+    pub gnss_bias_std: Vector3<f64>,
+    pub gnss_bias_tau_s: f64,
+}
+
+impl Ekf {
+    pub fn new(
+        pos: Vector3<f64>,
+        vel: Vector3<f64>,
+        pos_var: Vector3<f64>,
+        vel_var: Vector3<f64>,
+        bias_var: f64,
+    ) -> Self {
+        let mut x = DVector::zeros(CORE_STATES);
+        x.fixed_rows_mut::<3>(IDX_P).copy_from(&pos);
+        x.fixed_rows_mut::<3>(IDX_V).copy_from(&vel);
+        let mut p = DMatrix::zeros(CORE_STATES, CORE_STATES);
+        for i in 0..3 {
+            p[(IDX_P + i, IDX_P + i)] = pos_var[i];
+            p[(IDX_V + i, IDX_V + i)] = vel_var[i];
+            p[(IDX_BA + i, IDX_BA + i)] = bias_var;
+        }
+        Self {
+            x,
+            p,
+            blocks: Vec::new(),
+            terrain_rw: 0.0,
+            gnss_bias_std: Vector3::zeros(),
+            gnss_bias_tau_s: 1.0,
+        }
+    }
+
+    pub fn n(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn pos(&self) -> Vector3<f64> {
+        self.x.fixed_rows::<3>(IDX_P).into_owned()
+    }
+
+    pub fn vel(&self) -> Vector3<f64> {
+        self.x.fixed_rows::<3>(IDX_V).into_owned()
+    }
+
+    pub fn accel_bias(&self) -> Vector3<f64> {
+        self.x.fixed_rows::<3>(IDX_BA).into_owned()
+    }
+
+    /// Set the GNSS slow-error model and its prior.
+    pub fn set_gnss_bias_model(&mut self, std: Vector3<f64>, tau_s: f64) {
+        self.gnss_bias_std = std;
+        self.gnss_bias_tau_s = tau_s;
+        for i in 0..3 {
+            self.p[(IDX_BG + i, IDX_BG + i)] = std[i] * std[i];
+        }
+        self.symmetrise();
+    }
+
+    pub fn cov3(&self, i: usize) -> Matrix3<f64> {
+        self.p.fixed_view::<3, 3>(i, i).into_owned()
+    }
+
+    pub fn block(&self, source: &str) -> Option<usize> {
+        self.blocks
+            .iter()
+            .find(|(s, _)| s == source)
+            .map(|&(_, i)| i)
+    }
+
+    /// True if every state and covariance entry is finite.
+    pub fn is_finite(&self) -> bool {
+        self.x.iter().all(|v| v.is_finite()) && self.p.iter().all(|v| v.is_finite())
+    }
+
+    /// Propagate by `dt` seconds with specific force `f_body` (body FLU) rotated by `rot`
+    /// (body → world). `accel_var` is the per-axis variance of the specific force
+    /// (white, per step); `bias_rw` in m/s²/√s; `drift_rw[i]` for each offset block.
+    pub fn predict(
+        &mut self,
+        f_body: Vector3<f64>,
+        rot: &Matrix3<f64>,
+        dt: f64,
+        accel_var: f64,
+        bias_rw: f64,
+        drift_rw: &[f64],
+    ) {
+        if dt <= 0.0 {
+            return;
+        }
+        let n = self.n();
+        let ba = self.accel_bias();
+        let a = rot * (f_body - ba) - Vector3::new(0.0, 0.0, GRAVITY);
+        let p = self.pos() + self.vel() * dt + a * (0.5 * dt * dt);
+        let v = self.vel() + a * dt;
+        self.x.fixed_rows_mut::<3>(IDX_P).copy_from(&p);
+        self.x.fixed_rows_mut::<3>(IDX_V).copy_from(&v);
+
+        let mut f = DMatrix::identity(n, n);
+        for i in 0..3 {
+            f[(IDX_P + i, IDX_V + i)] = dt;
+        }
+        f.view_mut((IDX_P, IDX_BA), (3, 3))
+            .copy_from(&(-rot * (0.5 * dt * dt)));
+        f.view_mut((IDX_V, IDX_BA), (3, 3)).copy_from(&(-rot * dt));
+        let phi = (-dt / self.gnss_bias_tau_s.max(1e-3)).exp();
+        for i in 0..3 {
+            f[(IDX_BG + i, IDX_BG + i)] = phi;
+            self.x[IDX_BG + i] *= phi;
+        }
+        let mut next = &f * &self.p * f.transpose();
+        // Process noise: white specific force over the step, bias and drift random walks.
+        let q = accel_var;
+        for i in 0..3 {
+            next[(IDX_P + i, IDX_P + i)] += q * dt.powi(4) / 4.0;
+            next[(IDX_P + i, IDX_V + i)] += q * dt.powi(3) / 2.0;
+            next[(IDX_V + i, IDX_P + i)] += q * dt.powi(3) / 2.0;
+            next[(IDX_V + i, IDX_V + i)] += q * dt * dt;
+            next[(IDX_BA + i, IDX_BA + i)] += bias_rw * bias_rw * dt;
+        }
+        next[(IDX_TERRAIN, IDX_TERRAIN)] += self.terrain_rw * self.terrain_rw * dt;
+        for i in 0..3 {
+            next[(IDX_BG + i, IDX_BG + i)] += self.gnss_bias_std[i].powi(2) * (1.0 - phi * phi);
+        }
+        for (k, &(_, idx)) in self.blocks.iter().enumerate() {
+            let rw = drift_rw.get(k).copied().unwrap_or(0.0);
+            for i in 0..3 {
+                next[(idx + i, idx + i)] += rw * rw * dt;
+            }
+        }
+        self.p = next;
+        self.symmetrise();
+    }
+
+    /// Measurement update with innovation `y = z - h(x)`, Jacobian `h` (m×n) and noise
+    /// `r` (m×m). Rejected (state untouched) when the NIS exceeds `gate` (a chi²
+    /// threshold for m degrees of freedom), unless `force`.
+    pub fn update(
+        &mut self,
+        y: &DVector<f64>,
+        h: &DMatrix<f64>,
+        r: &DMatrix<f64>,
+        gate: f64,
+        force: bool,
+    ) -> UpdateOutcome {
+        let s = h * &self.p * h.transpose() + r;
+        let s = (&s + s.transpose()) * 0.5;
+        let innovation: Vec<f64> = y.iter().copied().collect();
+        let innovation_var: Vec<f64> = s.diagonal().iter().copied().collect();
+        let Some(chol) = s.clone().cholesky() else {
+            return UpdateOutcome {
+                innovation,
+                innovation_var,
+                nis: f64::INFINITY,
+                test_ratio: f64::INFINITY,
+                accepted: false,
+            };
+        };
+        let s_inv_y = chol.solve(y);
+        let nis = y.dot(&s_inv_y);
+        let test_ratio = if gate > 0.0 { nis / gate } else { 0.0 };
+        let accepted = nis.is_finite() && (force || test_ratio <= 1.0);
+        if accepted {
+            // K = P Hᵀ S⁻¹, computed as (S⁻¹ H P)ᵀ (S and P symmetric).
+            let hp = h * &self.p;
+            let k = chol.solve(&hp).transpose();
+            self.x += &k * y;
+            let n = self.n();
+            let ikh = DMatrix::identity(n, n) - &k * h;
+            self.p = &ikh * &self.p * ikh.transpose() + &k * r * k.transpose();
+            self.symmetrise();
+        }
+        UpdateOutcome {
+            innovation,
+            innovation_var,
+            nis,
+            test_ratio,
+            accepted,
+        }
+    }
+
+    /// Make P exactly symmetric and keep its diagonal above a tiny floor.
+    pub fn symmetrise(&mut self) {
+        let n = self.n();
+        for i in 0..n {
+            for j in (i + 1)..n {
+                let m = 0.5 * (self.p[(i, j)] + self.p[(j, i)]);
+                self.p[(i, j)] = m;
+                self.p[(j, i)] = m;
+            }
+            if self.p[(i, i)] < VAR_FLOOR {
+                self.p[(i, i)] = VAR_FLOOR;
+            }
+        }
+    }
+
+    /// Add or restart the offset block of an odometry source: b = 0, correlated with p
+    /// so that the source carries only relative information from here on.
+    pub fn start_block(&mut self, source: &str) -> usize {
+        let idx = match self.block(source) {
+            Some(i) => i,
+            None => {
+                let n = self.n();
+                let mut x = DVector::zeros(n + 3);
+                x.rows_mut(0, n).copy_from(&self.x);
+                let mut p = DMatrix::zeros(n + 3, n + 3);
+                p.view_mut((0, 0), (n, n)).copy_from(&self.p);
+                self.x = x;
+                self.p = p;
+                self.blocks.push((source.to_string(), n));
+                n
+            }
+        };
+        let n = self.n();
+        for i in 0..3 {
+            self.x[idx + i] = 0.0;
+        }
+        // b = -δp: Cov(b, x) = -Cov(p, x) for every other state, Var(b) = Var(p).
+        let p_rows = self.p.rows(IDX_P, 3).into_owned();
+        for j in 0..n {
+            if (idx..idx + 3).contains(&j) {
+                continue;
+            }
+            for i in 0..3 {
+                self.p[(idx + i, j)] = -p_rows[(i, j)];
+                self.p[(j, idx + i)] = -p_rows[(i, j)];
+            }
+        }
+        let ppp = self.cov3(IDX_P);
+        self.p.view_mut((idx, idx), (3, 3)).copy_from(&ppp);
+        self.symmetrise();
+        idx
+    }
+
+    /// The world frame moved by an uncertain amount (covariance `s`), e.g. when GNSS
+    /// anchors a frame that started at the take-off pose: p and the terrain (world
+    /// points) share the error, every odometry offset has it with the opposite sign.
+    pub fn add_frame_uncertainty(&mut self, s: &Matrix3<f64>) {
+        let n = self.n();
+        let mut j: DMatrix<f64> = DMatrix::zeros(n, 3);
+        j.view_mut((IDX_P, 0), (3, 3))
+            .copy_from(&Matrix3::identity());
+        j[(IDX_TERRAIN, 2)] = 1.0;
+        for &(_, idx) in &self.blocks {
+            j.view_mut((idx, 0), (3, 3))
+                .copy_from(&(-Matrix3::identity()));
+        }
+        let sd = DMatrix::from_iterator(3, 3, s.iter().copied());
+        self.p += &j * sd * j.transpose();
+        self.symmetrise();
+    }
+
+    /// Set position and velocity (a reset): the new values are uncorrelated with the
+    /// rest and have the given variances. Odometry blocks must be restarted afterwards.
+    pub fn reset_pos_vel(
+        &mut self,
+        pos: Vector3<f64>,
+        vel: Option<Vector3<f64>>,
+        pos_var: Vector3<f64>,
+        vel_var: f64,
+    ) {
+        let n = self.n();
+        let mut idx: Vec<usize> = (0..3).map(|i| IDX_P + i).collect();
+        self.x.fixed_rows_mut::<3>(IDX_P).copy_from(&pos);
+        if let Some(v) = vel {
+            self.x.fixed_rows_mut::<3>(IDX_V).copy_from(&v);
+            idx.extend((0..3).map(|i| IDX_V + i));
+        }
+        for &i in &idx {
+            for j in 0..n {
+                self.p[(i, j)] = 0.0;
+                self.p[(j, i)] = 0.0;
+            }
+        }
+        for i in 0..3 {
+            self.p[(IDX_P + i, IDX_P + i)] = pos_var[i];
+            if vel.is_some() {
+                self.p[(IDX_V + i, IDX_V + i)] = vel_var;
+            }
+        }
+        self.symmetrise();
+    }
+
+    /// Shift the position (origin reset); the covariance is unchanged.
+    pub fn shift_position(&mut self, d: Vector3<f64>) {
+        let p = self.pos() + d;
+        self.x.fixed_rows_mut::<3>(IDX_P).copy_from(&p);
+    }
+}
+
+/// Jacobian row block selecting the position (3×n).
+pub fn h_pos(n: usize) -> DMatrix<f64> {
+    let mut h = DMatrix::zeros(3, n);
+    for i in 0..3 {
+        h[(i, IDX_P + i)] = 1.0;
+    }
+    h
+}
+
+pub fn dmat3(m: &Matrix3<f64>) -> DMatrix<f64> {
+    DMatrix::from_iterator(3, 3, m.iter().copied())
+}
+
+pub fn dvec(v: &[f64]) -> DVector<f64> {
+    DVector::from_column_slice(v)
+}
+
+// ---- chi² gate ----------------------------------------------------------------------
+
+fn erfc(x: f64) -> f64 {
+    // Numerical Recipes erfcc (Chebyshev), fractional error < 1.2e-7.
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let ans = t
+        * (-z * z - 1.265_512_23
+            + t * (1.000_023_68
+                + t * (0.374_091_96
+                    + t * (0.096_784_18
+                        + t * (-0.186_288_06
+                            + t * (0.278_868_07
+                                + t * (-1.135_203_98
+                                    + t * (1.488_515_87
+                                        + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
+            .exp();
+    if x >= 0.0 {
+        ans
+    } else {
+        2.0 - ans
+    }
+}
+
+/// Regularised lower incomplete gamma P(k/2, x/2) = chi² CDF with k degrees of freedom.
+pub fn chi2_cdf(k: usize, x: f64) -> f64 {
+    if x <= 0.0 {
+        return 0.0;
+    }
+    if k == 1 {
+        return 1.0 - erfc((x / 2.0).sqrt());
+    }
+    let a = k as f64 / 2.0;
+    let hx = x / 2.0;
+    // Series: P(a, x) = x^a e^-x / Γ(a+1) Σ x^n / ((a+1)…(a+n)).
+    let mut gamma_a1 = 1.0; // Γ(a + 1) for integer or half-integer a.
+    let mut m = a;
+    while m > 0.6 {
+        gamma_a1 *= m;
+        m -= 1.0;
+    }
+    if (m - 0.5).abs() < 1e-9 {
+        gamma_a1 *= 0.5 * std::f64::consts::PI.sqrt();
+    }
+    let mut term = 1.0;
+    let mut sum = 1.0;
+    for n in 1..500 {
+        term *= hx / (a + n as f64);
+        sum += term;
+        if term < sum * 1e-16 {
+            break;
+        }
+    }
+    (hx.powf(a) * (-hx).exp() / gamma_a1 * sum).min(1.0)
+}
+
+/// The chi² quantile with `k` degrees of freedom that has the same tail probability as
+/// a `sigma` standard-deviation gate in one dimension (5σ → 25 for k = 1, 31.8 for 3).
+pub fn chi2_gate(k: usize, sigma: f64) -> f64 {
+    let p = 1.0 - erfc(sigma / std::f64::consts::SQRT_2);
+    if k <= 1 {
+        return sigma * sigma;
+    }
+    let (mut lo, mut hi) = (0.0, 1000.0);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if chi2_cdf(k, mid) < p {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 1-D constant-velocity KF by hand: x = [p, v], F = [[1, dt], [0, 1]], no process
+    /// noise, H = [1, 0], R = 1, P0 = diag(4, 1), x0 = 0, dt = 1, z = 2.
+    /// Predict: P⁻ = [[5, 1], [1, 1]]; S = 6; K = [5/6, 1/6];
+    /// x⁺ = [5/3, 1/3]; P⁺ = [[5/6, 1/6], [1/6, 5/6]].
+    #[test]
+    fn hand_worked_constant_velocity_step() {
+        // Map the 1-D problem onto the x axis of the 9-state filter with zero specific
+        // force balancing gravity (f = +g on z, identity attitude) and no process noise.
+        let mut ekf = Ekf::new(
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::new(4.0, 1.0, 1.0),
+            Vector3::new(1.0, 1.0, 1.0),
+            0.0,
+        );
+        ekf.predict(
+            Vector3::new(0.0, 0.0, GRAVITY),
+            &Matrix3::identity(),
+            1.0,
+            0.0,
+            0.0,
+            &[],
+        );
+        assert!((ekf.p[(0, 0)] - 5.0).abs() < 1e-12);
+        assert!((ekf.p[(0, 3)] - 1.0).abs() < 1e-12);
+        let mut h = DMatrix::zeros(1, ekf.n());
+        h[(0, 0)] = 1.0;
+        let y = dvec(&[2.0 - ekf.pos().x]);
+        let out = ekf.update(&y, &h, &DMatrix::identity(1, 1), 25.0, false);
+        assert!(out.accepted);
+        assert!((out.nis - 4.0 / 6.0).abs() < 1e-12);
+        assert!((ekf.x[0] - 5.0 / 3.0).abs() < 1e-12, "{}", ekf.x[0]);
+        assert!((ekf.x[3] - 1.0 / 3.0).abs() < 1e-12);
+        assert!((ekf.p[(0, 0)] - 5.0 / 6.0).abs() < 1e-12);
+        assert!((ekf.p[(0, 3)] - 1.0 / 6.0).abs() < 1e-12);
+        assert!((ekf.p[(3, 3)] - 5.0 / 6.0).abs() < 1e-12);
+    }
+
+    /// A reference run against filterpy 2.0.0 (`KalmanFilter(dim_x=2, dim_z=1)`,
+    /// F = [[1, .1], [0, 1]], H = [[1, 0]], R = .25, Q = Q_discrete_white_noise(2, .1,
+    /// var=.5) (= q·[[dt⁴/4, dt³/2], [dt³/2, dt²]]), P = diag(1, 1), x = 0, measurements
+    /// z = 0.1, 0.25, 0.33, 0.52, 0.61), printed with `%.17g`.
+    #[test]
+    fn matches_filterpy_reference() {
+        let mut ekf = Ekf::new(
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::new(1.0, 1.0, 1.0),
+            Vector3::new(1.0, 1.0, 1.0),
+            0.0,
+        );
+        let mut h = DMatrix::zeros(1, ekf.n());
+        h[(0, 0)] = 1.0;
+        for z in [0.1, 0.25, 0.33, 0.52, 0.61] {
+            ekf.predict(
+                Vector3::new(0.0, 0.0, GRAVITY),
+                &Matrix3::identity(),
+                0.1,
+                0.5,
+                0.0,
+                &[],
+            );
+            let y = dvec(&[z - ekf.x[0]]);
+            ekf.update(&y, &h, &(DMatrix::identity(1, 1) * 0.25), 1e9, false);
+        }
+        let expected_x = [FILTERPY_X0, FILTERPY_X1];
+        let expected_p = [FILTERPY_P00, FILTERPY_P01, FILTERPY_P11];
+        assert!((ekf.x[0] - expected_x[0]).abs() < 1e-9, "{}", ekf.x[0]);
+        assert!((ekf.x[3] - expected_x[1]).abs() < 1e-9, "{}", ekf.x[3]);
+        assert!((ekf.p[(0, 0)] - expected_p[0]).abs() < 1e-9);
+        assert!((ekf.p[(0, 3)] - expected_p[1]).abs() < 1e-9);
+        assert!((ekf.p[(3, 3)] - expected_p[2]).abs() < 1e-9);
+    }
+
+    const FILTERPY_X0: f64 = 0.434_852_747_884_779;
+    const FILTERPY_X1: f64 = 0.421_324_390_538_872_83;
+    const FILTERPY_P00: f64 = 0.078_846_995_353_556_04;
+    const FILTERPY_P01: f64 = 0.146_288_875_010_112_37;
+    const FILTERPY_P11: f64 = 0.690_019_288_207_295_5;
+
+    #[test]
+    fn gate_rejects_an_outlier_and_keeps_the_state() {
+        let mut ekf = Ekf::new(
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::new(1.0, 1.0, 1.0),
+            Vector3::new(1.0, 1.0, 1.0),
+            0.01,
+        );
+        let before = ekf.clone();
+        let h = h_pos(ekf.n());
+        let r = dmat3(&Matrix3::identity());
+        let gate = chi2_gate(3, 5.0);
+        let out = ekf.update(&dvec(&[20.0, 0.0, 0.0]), &h, &r, gate, false);
+        assert!(!out.accepted && out.test_ratio > 1.0);
+        assert_eq!(ekf, before);
+        let out = ekf.update(&dvec(&[1.0, -1.0, 0.5]), &h, &r, gate, false);
+        assert!(out.accepted && out.test_ratio < 0.1);
+    }
+
+    #[test]
+    fn chi2_quantiles() {
+        assert!((chi2_gate(1, 5.0) - 25.0).abs() < 1e-9);
+        assert!((chi2_cdf(2, 2.0) - (1.0 - (-1.0f64).exp())).abs() < 1e-12);
+        // scipy 1.17 stats.chi2.ppf(1 - 2 * norm.sf(5), k): 28.7437 (k = 2), 31.8121 (k = 3).
+        let g3 = chi2_gate(3, 5.0);
+        let g2 = chi2_gate(2, 5.0);
+        assert!((g2 - 28.7437).abs() < 0.01, "{g2}");
+        assert!((g3 - 31.8121).abs() < 0.01, "{g3}");
+    }
+
+    #[test]
+    fn odometry_block_is_relative_at_start_and_covariance_stays_pd() {
+        let mut ekf = Ekf::new(
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::new(2.0, 2.0, 2.0),
+            Vector3::new(1.0, 1.0, 1.0),
+            0.01,
+        );
+        let idx = ekf.start_block("vo");
+        let n = ekf.n();
+        let mut h = h_pos(n);
+        for i in 0..3 {
+            h[(i, idx + i)] = 1.0;
+        }
+        // H P Hᵀ is zero: the first odometry sample says nothing about absolute position.
+        let s = &h * &ekf.p * h.transpose();
+        assert!(s.norm() < 1e-9, "{s}");
+        for _ in 0..50 {
+            ekf.predict(
+                Vector3::new(0.1, 0.0, GRAVITY),
+                &Matrix3::identity(),
+                0.01,
+                1e-4,
+                1e-3,
+                &[0.01],
+            );
+            let y = dvec(&[0.01, 0.0, 0.0]);
+            ekf.update(&y, &h, &dmat3(&(Matrix3::identity() * 1e-4)), 1e9, false);
+        }
+        assert!(ekf.p.clone().cholesky().is_some(), "not positive definite");
+        assert_eq!(ekf.p, ekf.p.transpose());
+    }
+}

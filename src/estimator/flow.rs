@@ -1,0 +1,423 @@
+//! Optical flow (seed 001 pipeline, seed 000 calibration).
+//!
+//! Checks: quality, finite rates within `max_rate`, a height. Preprocessing: per-axis
+//! scale factors; rotation compensation with the flow module's own gyro (OPTICAL_FLOW_RAD
+//! style) or the IMU gyro low-passed to the flow's phase (3 Hz) and clamped; scaling by
+//! the height along the body's down axis (the module's ToF, else the latest range finder
+//! sample, else the fused height over the tilt cosine): v_body = (-c_y·d, c_x·d) for
+//! compensated rates c = scale·rate − ω (sample.rs convention: rate = ω_xy + (v_y, −v_x)/d).
+//! Rotation into the navigation frame by yaw and integration into a displacement
+//! (`OF_sum`). Fuse: the body-frame horizontal velocity. The calibrator (ArduPilot
+//! AP_OpticalFlow_Calibrator) estimates the per-axis scale from the fused velocity.
+
+use super::attitude::{cos_tilt, yaw_of};
+use super::imu::Lpf3;
+use super::{Core, Ctx};
+use crate::sample::OpticalFlow;
+use nalgebra::{Matrix3, UnitQuaternion, Vector2, Vector3};
+use serde::Serialize;
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlowState {
+    pub lpf: Lpf3,
+    /// Scale factors from calibration, multiplied into the configured ones.
+    pub cal_scale: Vector2<f64>,
+    pub of_sum: Vector3<f64>,
+    pub last_t: Option<i64>,
+}
+
+impl Default for FlowState {
+    fn default() -> Self {
+        Self {
+            lpf: Lpf3::default(),
+            cal_scale: Vector2::new(1.0, 1.0),
+            of_sum: Vector3::zeros(),
+            last_t: None,
+        }
+    }
+}
+
+/// A preprocessed flow sample.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlowVelocity {
+    /// Compensated angular rate (the seed's compensated_OF), rad/s.
+    pub compensated: Vector2<f64>,
+    /// Horizontal body-frame velocity, m/s.
+    pub vel_body: Vector2<f64>,
+    /// Per-axis variance of `vel_body`, (m/s)².
+    pub var: Vector2<f64>,
+    pub height: f64,
+    /// The gyro used for compensation (after low-pass and clamp), rad/s.
+    pub gyro: Vector2<f64>,
+    /// The scaled raw rate, rad/s.
+    pub scaled_rate: Vector2<f64>,
+}
+
+/// Rotation compensation and height scaling (pure: testable on constructed motion).
+pub fn compensate(
+    rate: Vector2<f64>,
+    scale: Vector2<f64>,
+    gyro: Vector2<f64>,
+    clamp: f64,
+    height: f64,
+    rate_noise: f64,
+    height_noise: f64,
+) -> FlowVelocity {
+    let gyro = gyro.map(|w| w.clamp(-clamp, clamp));
+    let scaled_rate = rate.component_mul(&scale);
+    let c = scaled_rate - gyro;
+    let vel_body = Vector2::new(-c.y * height, c.x * height);
+    let var = Vector2::new(
+        (rate_noise * height).powi(2) + (c.y * height_noise).powi(2),
+        (rate_noise * height).powi(2) + (c.x * height_noise).powi(2),
+    );
+    FlowVelocity {
+        compensated: c,
+        vel_body,
+        var,
+        height,
+        gyro,
+        scaled_rate,
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum CalState {
+    #[default]
+    Idle,
+    Running,
+    Success,
+    Failed,
+}
+
+/// ArduPilot's flow scale calibrator: per axis, samples (flow_rate, body_rate,
+/// los_pred); here the model is `scale·flow = body_rate + los_pred` (sample.rs sign
+/// convention; ArduPilot's is `flow·scale = los_pred − body_rate`), so the best scalar
+/// of one sample is `(body_rate + los_pred) / flow`, averaged weighted by the sample's
+/// residual at scale 1.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct FlowCalibrator {
+    pub state: CalState,
+    pub start_t: i64,
+    pub source: Option<String>,
+    pub samples: [Vec<(f64, f64, f64)>; 2],
+    pub result: Option<Vector2<f64>>,
+}
+
+impl FlowCalibrator {
+    pub fn start(&mut self, t: i64) {
+        *self = Self {
+            state: CalState::Running,
+            start_t: t,
+            ..Self::default()
+        };
+    }
+
+    fn residual(s: &(f64, f64, f64), scalar: f64) -> f64 {
+        s.0 * scalar - (s.1 + s.2)
+    }
+
+    /// Best scalar for one axis, with the RMS residual before and after.
+    pub fn run_axis(samples: &[(f64, f64, f64)]) -> Option<(f64, f64, f64)> {
+        if samples.is_empty() {
+            return None;
+        }
+        let total: f64 = samples.iter().map(|s| Self::residual(s, 1.0).abs()).sum();
+        if total <= 0.0 {
+            return Some((1.0, 0.0, 0.0));
+        }
+        let mut best = 0.0;
+        for s in samples {
+            if s.0 == 0.0 {
+                return None;
+            }
+            let b = (s.1 + s.2) / s.0;
+            best += b * Self::residual(s, 1.0).abs() / total;
+        }
+        let rms = |k: f64| {
+            (samples
+                .iter()
+                .map(|s| Self::residual(s, k).powi(2))
+                .sum::<f64>()
+                / samples.len() as f64)
+                .sqrt()
+        };
+        Some((best, rms(1.0), rms(best)))
+    }
+}
+
+/// Height along the body's down axis for the flow: own ToF, else a range finder, else
+/// the fused height over the tilt cosine.
+fn flow_height(core: &Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow) -> Option<f64> {
+    let sc = ctx.cfg.source(source);
+    let (lo, hi) = (
+        sc.min_m.unwrap_or(super::config::DEFAULT_TOF_MIN_M),
+        sc.max_m.unwrap_or(super::config::DEFAULT_TOF_MAX_M),
+    );
+    if let Some(tof) = &f.tof {
+        if tof.distance_m.is_finite() && tof.distance_m > lo && tof.distance_m < hi {
+            return Some(tof.distance_m);
+        }
+    }
+    if let Some(d) = core.latest_range(t) {
+        return Some(d);
+    }
+    let ekf = core.ekf.as_ref()?;
+    let ct = cos_tilt(&core.att.q);
+    (ekf.p[(2, 2)] < 0.25 && ct > 0.3).then(|| ekf.pos().z / ct)
+}
+
+pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow) {
+    let cfg = ctx.cfg;
+    let sc = cfg.source(source);
+    if f.quality < cfg.flow_min_quality {
+        core.reject(t, source, "quality below flow_min_quality", ctx);
+        core.flow.entry(source.to_string()).or_default().last_t = Some(t);
+        return;
+    }
+    let Some(height) = flow_height(core, ctx, t, source, f) else {
+        core.reject(t, source, "no height for the flow", ctx);
+        return;
+    };
+    let mut st = core.flow.remove(source).unwrap_or_default();
+    let rate_noise = sc.noise.unwrap_or(cfg.flow_rate_noise);
+    let fv = if let Some(rate) = f.rate {
+        if !rate.iter().all(|v| v.is_finite()) || rate.amax() > sc.max_rate {
+            core.flow.insert(source.to_string(), st);
+            core.reject(t, source, "flow rate not finite or above max_rate", ctx);
+            return;
+        }
+        let gyro = match f.gyro.filter(|g| g.iter().all(|v| v.is_finite())) {
+            Some(g) => g.xy(),
+            None => match st.lpf.y.or(core.imu.rate.map(|r| r.1)) {
+                Some(g) => g.xy(),
+                None => {
+                    core.flow.insert(source.to_string(), st);
+                    core.reject(t, source, "no gyro for rotation compensation", ctx);
+                    return;
+                }
+            },
+        };
+        let scale = Vector2::new(sc.scale_x, sc.scale_y).component_mul(&st.cal_scale);
+        let fv = compensate(
+            rate,
+            scale,
+            gyro,
+            sc.gyro_clamp,
+            height,
+            rate_noise,
+            cfg.range_noise,
+        );
+        core.debug_point(t, "OF_data", source, Vector3::new(rate.x, rate.y, 0.0));
+        fv
+    } else if let Some(v) = f.velocity.filter(|v| v.iter().all(|x| x.is_finite())) {
+        let s = rate_noise * height;
+        FlowVelocity {
+            compensated: Vector2::new(v.y / height, -v.x / height),
+            vel_body: v,
+            var: Vector2::new(s * s, s * s),
+            height,
+            gyro: Vector2::zeros(),
+            scaled_rate: Vector2::zeros(),
+        }
+    } else {
+        core.flow.insert(source.to_string(), st);
+        core.reject(t, source, "flow sample without rate or velocity", ctx);
+        return;
+    };
+    let c = fv.compensated;
+    core.debug_point(t, "compensated_OF", source, Vector3::new(c.x, c.y, 0.0));
+    // Navigation frame by yaw, integrated (seed 001: sum_flow += speed · dt).
+    let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_of(&core.att.q));
+    let v_nav = yaw * Vector3::new(fv.vel_body.x, fv.vel_body.y, 0.0);
+    let dt = match (st.last_t, f.integration_s) {
+        (Some(t0), _) if t > t0 && t - t0 < 500_000 => (t - t0) as f64 * 1e-6,
+        (_, Some(i)) if i.is_finite() && i > 0.0 && i < 0.5 => i,
+        _ => 0.0,
+    };
+    st.last_t = Some(t);
+    let low = height < cfg.flow_min_height_m;
+    if dt > 0.0 && !low {
+        let d = v_nav * dt;
+        st.of_sum += d;
+        core.debug_point(t, "OF_sum", source, st.of_sum);
+        core.debug_point(t, "origin_dOF", source, d);
+        let var = Vector3::new(fv.var.x * dt * dt, fv.var.y * dt * dt, f64::INFINITY);
+        core.wrls.add_relative(source, d, var, dt);
+    }
+    core.flow.insert(source.to_string(), st);
+    if low {
+        core.reject(t, source, "below flow_min_height_m", ctx);
+        return;
+    }
+    core.monitors
+        .flow_velocity(t, v_nav.xy(), core.position(), cfg);
+    calibration_sample(core, ctx, t, source, &fv);
+    if !core.initialised() {
+        if core.att.known() {
+            let h = height * cos_tilt(&core.att.q);
+            let var = Vector3::repeat(cfg.init_pos_var);
+            core.initialise(t, source, Vector3::new(0.0, 0.0, h), var, None, None, ctx);
+        }
+        return;
+    }
+    // While calibrating, flow is not fused if anything else holds the velocity: the
+    // calibration compares flow with a fused velocity that must not come from flow.
+    if core.flow_cal.state == CalState::Running && core.other_aiding(t, source, ctx) {
+        return;
+    }
+    let mut r = Matrix3::from_diagonal(&Vector3::new(fv.var.x, fv.var.y, 0.0));
+    core.fuse_body_velocity(
+        t,
+        source,
+        Vector3::new(fv.vel_body.x, fv.vel_body.y, 0.0),
+        &mut r,
+        2,
+        ctx,
+    );
+    // The module's ToF as height when no range finder is being fused.
+    if let Some(tof) = &f.tof {
+        if (tof.distance_m - height).abs() < 1e-9 && !core.range_recent(t, ctx) {
+            let noise = cfg.range_noise;
+            super::range::fuse_height(core, ctx, t, source, height, noise * noise);
+        }
+    }
+}
+
+fn calibration_sample(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fv: &FlowVelocity) {
+    let cfg = ctx.cfg;
+    if core.flow_cal.state != CalState::Running {
+        return;
+    }
+    if core.flow_cal.source.as_deref().is_some_and(|s| s != source) {
+        return;
+    }
+    core.flow_cal.source = Some(source.to_string());
+    if (t - core.flow_cal.start_t) as f64 * 1e-6 > cfg.flow_cal_timeout_s {
+        core.flow_cal.state = CalState::Failed;
+        core.event(
+            t,
+            "calibration_result",
+            Some(source),
+            "flow calibration timed out".into(),
+            serde_json::json!({ "success": false, "reason": "timeout" }),
+        );
+        return;
+    }
+    let Some(v) = core.velocity() else { return };
+    if !core.other_aiding(t, source, ctx) {
+        return;
+    }
+    let vb = core.att.q.inverse() * v;
+    let los = Vector2::new(vb.y / fv.height, -vb.x / fv.height);
+    for axis in 0..2 {
+        let flow = fv.scaled_rate[axis];
+        if flow.abs() >= cfg.flow_cal_min_rate
+            && core.flow_cal.samples[axis].len() < cfg.flow_cal_samples
+        {
+            core.flow_cal.samples[axis].push((flow, fv.gyro[axis], los[axis]));
+        }
+    }
+    if core
+        .flow_cal
+        .samples
+        .iter()
+        .all(|s| s.len() >= cfg.flow_cal_samples)
+    {
+        let rx = FlowCalibrator::run_axis(&core.flow_cal.samples[0]);
+        let ry = FlowCalibrator::run_axis(&core.flow_cal.samples[1]);
+        let ok = |r: &Option<(f64, f64, f64)>| {
+            r.is_some_and(|(s, before, after)| {
+                after <= before && s >= cfg.flow_cal_scale_min && s <= cfg.flow_cal_scale_max
+            })
+        };
+        let success = ok(&rx) && ok(&ry);
+        let (sx, bx, ax) = rx.unwrap_or((f64::NAN, f64::NAN, f64::NAN));
+        let (sy, by, ay) = ry.unwrap_or((f64::NAN, f64::NAN, f64::NAN));
+        let data = serde_json::json!({
+            "success": success,
+            "scale_x": sx, "scale_y": sy,
+            "rms_before": [bx, by], "rms_after": [ax, ay],
+        });
+        if success {
+            core.flow_cal.state = CalState::Success;
+            core.flow_cal.result = Some(Vector2::new(sx, sy));
+            if let Some(st) = core.flow.get_mut(source) {
+                st.cal_scale = st.cal_scale.component_mul(&Vector2::new(sx, sy));
+            }
+        } else {
+            core.flow_cal.state = CalState::Failed;
+        }
+        core.event(
+            t,
+            "calibration_result",
+            Some(source),
+            format!(
+                "flow calibration {}: scale x {sx:.3}, y {sy:.3}",
+                if success { "succeeded" } else { "failed" }
+            ),
+            data,
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rotation_only_motion_gives_zero_velocity() {
+        // Hovering while rocking: the flow sees only the body rate (sample.rs / sim).
+        for w in [
+            Vector2::new(0.3, -0.2),
+            Vector2::new(-1.0, 0.5),
+            Vector2::zeros(),
+        ] {
+            let fv = compensate(w, Vector2::new(1.0, 1.0), w, 4.0, 2.0, 0.03, 0.03);
+            assert!(fv.vel_body.norm() < 1e-12, "{}", fv.vel_body);
+        }
+        // Translation: v = (0.5, -0.2) at d = 2 → rate = (v_y/d, -v_x/d).
+        let rate = Vector2::new(-0.2 / 2.0, -0.5 / 2.0);
+        let fv = compensate(
+            rate,
+            Vector2::new(1.0, 1.0),
+            Vector2::zeros(),
+            4.0,
+            2.0,
+            0.03,
+            0.0,
+        );
+        assert!((fv.vel_body - Vector2::new(0.5, -0.2)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn clamp_limits_the_gyro() {
+        let fv = compensate(
+            Vector2::zeros(),
+            Vector2::new(1.0, 1.0),
+            Vector2::new(10.0, -10.0),
+            2.0,
+            1.0,
+            0.03,
+            0.0,
+        );
+        assert_eq!(fv.gyro, Vector2::new(2.0, -2.0));
+    }
+
+    #[test]
+    fn calibrator_recovers_a_scale_error() {
+        // True model: 0.8·flow = body + los (the sensor reads 25 % high).
+        let samples: Vec<(f64, f64, f64)> = (0..50)
+            .map(|i| {
+                let body = 0.1 * ((i as f64) * 0.7).sin();
+                let los = 0.5 * ((i as f64) * 0.3).cos() + 0.2;
+                ((body + los) / 0.8, body, los)
+            })
+            .filter(|s| s.0.abs() > 0.05)
+            .collect();
+        let (s, before, after) = FlowCalibrator::run_axis(&samples).expect("scalar");
+        assert!((s - 0.8).abs() < 1e-9, "{s}");
+        assert!(after < before);
+    }
+}

@@ -1,0 +1,180 @@
+//! GNSS: position (and velocity) in local ENU relative to the origin.
+//!
+//! Checks: a 3D fix (or better), finite coordinates, a usable accuracy (the message's
+//! covariance, else HDOP/VDOP × UERE), not worse than `gnss_max_var`. Control: the first
+//! good fix sets the origin; if the filter already runs (indoor start) the origin is
+//! placed so that the fix lands on the current estimate (no jump) and the frame's
+//! uncertainty is added to the covariance. Fuse: 3D position with the full covariance,
+//! velocity where the message has one.
+
+use super::config::EstimatorConfig;
+use super::{Core, Ctx};
+use crate::geo::LocalEnu;
+use crate::sample::{GnssFix, GnssFixType};
+use nalgebra::{Matrix3, Vector3};
+use std::collections::BTreeMap;
+
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct GnssState {
+    pub origin: Option<LocalEnu>,
+    /// Last ENU position per source (for the frame deltas).
+    pub last: BTreeMap<String, (i64, Vector3<f64>)>,
+    /// Last time a GNSS fix was fused, µs.
+    pub last_fused: Option<i64>,
+}
+
+/// Checks of one fix; returns the ENU covariance.
+pub fn checks(fix: &GnssFix, cfg: &EstimatorConfig) -> Result<Matrix3<f64>, &'static str> {
+    match fix.fix {
+        GnssFixType::NoFix => return Err("no fix"),
+        GnssFixType::Fix2d => return Err("2D fix only"),
+        _ => {}
+    }
+    if !(fix.lat_deg.is_finite() && fix.lon_deg.is_finite() && fix.alt_m.is_finite())
+        || fix.lat_deg.abs() > 90.0
+        || fix.lon_deg.abs() > 180.0
+    {
+        return Err("coordinates not finite or out of range");
+    }
+    let cov = match fix.position_cov {
+        Some(c) if c.iter().all(|v| v.is_finite()) && (0..3).all(|i| c[(i, i)] > 0.0) => c,
+        _ => {
+            let Some(hdop) = fix.hdop.filter(|h| h.is_finite() && *h > 0.0) else {
+                return Err("no accuracy (covariance or HDOP)");
+            };
+            let vdop = fix
+                .vdop
+                .filter(|v| v.is_finite() && *v > 0.0)
+                .unwrap_or(1.5 * hdop);
+            let h = (hdop * cfg.gnss_uere_m).powi(2);
+            let v = (vdop * cfg.gnss_uere_m).powi(2);
+            Matrix3::from_diagonal(&Vector3::new(h, h, v))
+        }
+    };
+    if cov[(0, 0)].max(cov[(1, 1)]) > cfg.gnss_max_var {
+        return Err("accuracy worse than gnss_max_var");
+    }
+    Ok(cov)
+}
+
+pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) {
+    let cfg = ctx.cfg;
+    let cov = match checks(fix, cfg) {
+        Ok(c) => c,
+        Err(why) => {
+            core.reject(t, source, why, ctx);
+            return;
+        }
+    };
+    // Control: origin.
+    let origin = match core.gnss.origin {
+        Some(o) => o,
+        None => {
+            let at_fix = LocalEnu::new(fix.lat_deg, fix.lon_deg, fix.alt_m);
+            let origin = match core.position() {
+                Some(p) => {
+                    // Place the origin so that this fix is where we already are.
+                    let (lat, lon, alt) = at_fix.to_geodetic(-p);
+                    if let Some(ekf) = core.ekf.as_mut() {
+                        ekf.add_frame_uncertainty(&cov);
+                    }
+                    core.wrls.add_frame_uncertainty(&cov);
+                    LocalEnu::new(lat, lon, alt)
+                }
+                None => at_fix,
+            };
+            core.gnss.origin = Some(origin);
+            core.event(
+                t,
+                "origin_set",
+                Some(source),
+                format!(
+                    "ENU origin set from GNSS at {:.7}, {:.7}, {:.2} m",
+                    origin.origin_lat_deg, origin.origin_lon_deg, origin.origin_alt_m
+                ),
+                serde_json::json!({
+                    "lat": origin.origin_lat_deg,
+                    "lon": origin.origin_lon_deg,
+                    "alt": origin.origin_alt_m,
+                }),
+            );
+            origin
+        }
+    };
+    let enu = origin.to_enu(fix.lat_deg, fix.lon_deg, fix.alt_m);
+    core.debug_point(t, "oriUAV_gps", source, enu);
+    if let Some((_, last)) = core.gnss.last.get(source) {
+        core.debug_point(t, "origin_dgps", source, enu - last);
+    }
+    core.gnss.last.insert(source.to_string(), (t, enu));
+    let vel = fix
+        .velocity
+        .filter(|v| cfg.gnss_fuse_velocity && v.iter().all(|x| x.is_finite()));
+    let vel_noise = cfg.source(source).vel_noise.unwrap_or(cfg.gnss_vel_noise);
+    // A configured noise is the white part (1σ horizontal; vertical keeps the message's
+    // vertical/horizontal ratio); else the message's variance less the modelled slow part.
+    let noise_override = cfg.source(source).noise;
+    let white = match noise_override {
+        Some(s) => {
+            let ratio = (cov[(2, 2)] / cov[(0, 0)].max(1e-12)).max(1.0);
+            Matrix3::from_diagonal(&Vector3::new(s * s, s * s, s * s * ratio))
+        }
+        None => {
+            let mut w = cov;
+            let (b, bv) = (cfg.gnss_bias_std_m, cfg.gnss_bias_std_v_m);
+            for (i, var) in [b * b, b * b, bv * bv].into_iter().enumerate() {
+                w[(i, i)] = (cov[(i, i)] - var).max(0.25 * cov[(i, i)]);
+            }
+            w
+        }
+    };
+    core.wrls.add_absolute(source, enu, cov.diagonal());
+    core.monitors.gps_fix(t, enu, vel, cfg);
+    if !core.initialised() {
+        if core.att.known() {
+            let v_var = vel.map(|_| vel_noise * vel_noise);
+            core.initialise(t, source, enu, cov.diagonal(), vel, v_var, ctx);
+        }
+        return;
+    }
+    // Fuse: the slow part of the error is the bias state, the rest is white.
+    let accepted = core.fuse_position(t, source, "gnss", enu, &white, None, ctx);
+    if accepted {
+        core.gnss.last_fused = Some(t);
+    }
+    if let Some(v) = vel {
+        let r = Matrix3::identity() * (vel_noise * vel_noise);
+        core.fuse_world_velocity(t, source, v, &r, ctx);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fix(kind: GnssFixType) -> GnssFix {
+        GnssFix {
+            lat_deg: 47.0,
+            lon_deg: 8.0,
+            alt_m: 400.0,
+            fix: kind,
+            position_cov: None,
+            satellites: Some(10),
+            hdop: Some(0.8),
+            vdop: None,
+            velocity: None,
+        }
+    }
+
+    #[test]
+    fn no_fix_is_skipped_and_hdop_gives_the_variance() {
+        let cfg = EstimatorConfig::default();
+        assert!(checks(&fix(GnssFixType::NoFix), &cfg).is_err());
+        let c = checks(&fix(GnssFixType::Fix3d), &cfg).expect("3d fix");
+        assert!((c[(0, 0)] - (0.8f64 * 2.5).powi(2)).abs() < 1e-12);
+        assert!((c[(2, 2)] - (1.2f64 * 2.5).powi(2)).abs() < 1e-12);
+        let mut bad = fix(GnssFixType::Fix3d);
+        bad.hdop = Some(5.0);
+        assert!(checks(&bad, &cfg).is_err());
+    }
+}

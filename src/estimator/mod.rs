@@ -1,0 +1,1236 @@
+//! The estimator: samples in, fused pose and events out. Pure and deterministic: no
+//! clock, no I/O; time comes with the samples.
+//!
+//! Layout (PX4 ekf2 style, one file per aiding source with the same verbs: `checks`,
+//! control (start/continue conditions inside `process`), fuse):
+//! [`imu`] (prediction input, gyro bias), [`attitude`] (autopilot attitude or own
+//! complementary filter), [`gnss`], [`odometry`], [`flow`], [`range`], [`ekf`] (the
+//! maths), [`wrls`] (seed 002's weighted least squares), [`monitor`] (divergence
+//! monitors), [`timing`] (clock mapping), [`config`].
+//!
+//! Time: every sample gets a host time (`timing`): stamp + windowed-minimum clock offset
+//! − configured latency. Samples are kept in a time-ordered log together with snapshots
+//! of the whole filter core (at every IMU sample) for `history_ms`. A sample older than
+//! the newest processed one (a late measurement) is inserted into the log, the core is
+//! restored from the snapshot before it, and everything after is re-run, so the result
+//! is the same as if it had arrived in order (bit for bit: the same operations run in
+//! the same order). Events of re-run samples are emitted once.
+//!
+//! Modes: `ekf` (default), `wrls`, `wrls+ekf` (the WRLS position as the EKF's only
+//! position measurement, seed 002's layout). Measured on the simulator (300 s of
+//! DEMO_STREAMS, tests `sim_*`): position RMSE ekf 0.12 m, wrls 0.16 m, wrls+ekf 0.17 m
+//! in the GNSS-anchored frame (GNSS alone 0.89 m, T265 alone 1.21 m in that frame, 0.06 m
+//! with an oracle alignment); without GNSS ekf 0.028 m, wrls 0.069 m, wrls+ekf 0.071 m
+//! (T265 0.094 m). Only the EKF's covariance is consistent (position NEES 1.8–2.1, expected
+//! 3; WRLS treats its sources as independent and is over-confident), hence the default.
+
+pub mod attitude;
+pub mod config;
+pub mod ekf;
+mod flow;
+mod gnss;
+mod imu;
+pub mod monitor;
+mod odometry;
+mod range;
+pub mod timing;
+pub mod wrls;
+
+pub use config::{EstimatorConfig, Mode, SourceConfig};
+pub use flow::CalState;
+
+use crate::sample::{Sample, SensorData, SensorKind};
+use attitude::AttitudeState;
+use ekf::{dmat3, dvec, Ekf, UpdateOutcome, GRAVITY, IDX_P, IDX_V};
+use flow::{FlowCalibrator, FlowState};
+use gnss::GnssState;
+use imu::ImuState;
+use monitor::{MonitorReset, Monitors};
+use nalgebra::{DMatrix, Matrix3, UnitQuaternion, Vector3};
+use odometry::OdomState;
+use serde::Serialize;
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::sync::Arc;
+use timing::ClockMap;
+use wrls::Wrls;
+
+/// The fused estimate.
+#[derive(Clone, Debug, Serialize)]
+pub struct FusedPose {
+    /// Host clock, µs: the time the estimate refers to.
+    pub time_us: i64,
+    /// ENU, m.
+    pub position: Vector3<f64>,
+    pub velocity: Vector3<f64>,
+    /// Body FLU → ENU.
+    pub orientation: UnitQuaternion<f64>,
+    pub angular_velocity: Option<Vector3<f64>>,
+    pub position_cov: Matrix3<f64>,
+    pub velocity_cov: Matrix3<f64>,
+    /// rad², roll/pitch/yaw small-angle.
+    pub orientation_cov: Matrix3<f64>,
+    pub sources: Vec<String>,
+    /// Wraps, MAVLink style.
+    pub reset_counter: u8,
+    pub valid: bool,
+    pub invalid_reason: Option<String>,
+    /// Geodetic (lat, lon, alt) of the ENU origin if GNSS set it.
+    pub origin: Option<(f64, f64, f64)>,
+}
+
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct EstimatorEvent {
+    pub time_us: i64,
+    pub kind: &'static str,
+    pub source: Option<String>,
+    pub message: String,
+    pub data: serde_json::Value,
+}
+
+/// One point of a debug series (the seed's rqt_plot topics).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct DebugPoint {
+    pub time_us: i64,
+    pub source: String,
+    pub value: [f64; 3],
+}
+
+/// The latest point per topic: `OF_data`, `imu_angular_velocity`, `compensated_OF`,
+/// `OF_sum`, `origin_dOF`, `oriUAV_t265`, `origin_dt265`, `oriUAV_gps`, `origin_dgps`,
+/// `fusion_displace`, `pose_msg`.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct DebugSeries {
+    pub series: BTreeMap<&'static str, DebugPoint>,
+}
+
+/// Per-source state for the status API and the health layer.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct SourceStatus {
+    pub kind: &'static str,
+    pub last_time_us: Option<i64>,
+    pub last_fused_us: Option<i64>,
+    pub innovation: Vec<f64>,
+    pub innovation_var: Vec<f64>,
+    pub test_ratio: f64,
+    pub accepted: u64,
+    pub rejected: u64,
+    pub last_reject_reason: Option<String>,
+    pub usable: bool,
+    pub segment: Option<u32>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct CalibrationStatus {
+    pub state: CalState,
+    pub source: Option<String>,
+    pub samples: [usize; 2],
+    pub result: Option<[f64; 2]>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct EstimatorStatus {
+    pub mode: &'static str,
+    pub initialised: bool,
+    pub valid: bool,
+    pub invalid_reason: Option<String>,
+    pub time_us: Option<i64>,
+    pub origin: Option<(f64, f64, f64)>,
+    pub reset_counter: u8,
+    pub sources_used: Vec<String>,
+    pub attitude_source: &'static str,
+    pub covariance_trace: Option<f64>,
+    pub position_std: Option<[f64; 3]>,
+    pub accel_bias: Option<[f64; 3]>,
+    pub gyro_bias: [f64; 3],
+    pub sources: BTreeMap<String, SourceStatus>,
+    pub calibration: CalibrationStatus,
+    pub monitor: Option<(&'static str, f64, f64)>,
+    pub history_len: usize,
+    pub late_dropped: u64,
+    pub clock_offsets_us: BTreeMap<String, i64>,
+}
+
+/// Read-only context of one processing step.
+pub(crate) struct Ctx<'a> {
+    pub cfg: &'a EstimatorConfig,
+    pub usable: &'a BTreeMap<String, (bool, String)>,
+    pub gates: [f64; 7],
+}
+
+impl Ctx<'_> {
+    fn gate(&self, dof: usize) -> f64 {
+        self.gates[dof.min(6)]
+    }
+    fn usable(&self, source: &str) -> bool {
+        self.usable.get(source).is_none_or(|u| u.0)
+    }
+}
+
+fn kind_str(k: SensorKind) -> &'static str {
+    k.as_str()
+}
+
+/// Everything that evolves with the samples (snapshotted for late measurements).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Core {
+    pub t: Option<i64>,
+    pub pred_t: Option<i64>,
+    pub ekf: Option<Ekf>,
+    pub att: AttitudeState,
+    pub imu: ImuState,
+    pub gnss: GnssState,
+    pub odom: BTreeMap<String, OdomState>,
+    pub flow: BTreeMap<String, FlowState>,
+    pub flow_cal: FlowCalibrator,
+    /// Latest range per source: (time, slant distance).
+    pub range: BTreeMap<String, (i64, f64)>,
+    pub wrls: Wrls,
+    pub wrls_ekf_last: Option<i64>,
+    pub monitors: Monitors,
+    pub reset_counter: u8,
+    pub stats: BTreeMap<String, SourceStatus>,
+    pub debug: DebugSeries,
+    pub events: Vec<EstimatorEvent>,
+    pub throttle: BTreeMap<String, i64>,
+    pub last_aiding: Option<i64>,
+    pub used_set: Vec<String>,
+    pub mode_wrls: bool,
+    pub mode_ekf_direct: bool,
+    pub wrls_period_s: f64,
+}
+
+const AIDING: [&str; 4] = ["gnss", "odometry", "flow", "range"];
+
+impl Core {
+    fn new(cfg: &EstimatorConfig) -> Self {
+        Self {
+            mode_wrls: cfg.mode == Mode::Wrls,
+            mode_ekf_direct: cfg.mode == Mode::Ekf,
+            wrls_period_s: cfg.wrls_period_ms * 1e-3,
+            ..Self::default()
+        }
+    }
+
+    pub fn initialised(&self) -> bool {
+        if self.mode_wrls {
+            self.wrls.x.is_some()
+        } else {
+            self.ekf.is_some()
+        }
+    }
+
+    pub fn position(&self) -> Option<Vector3<f64>> {
+        if self.mode_wrls {
+            self.wrls.x
+        } else {
+            self.ekf.as_ref().map(|e| e.pos())
+        }
+    }
+
+    pub fn velocity(&self) -> Option<Vector3<f64>> {
+        if self.mode_wrls {
+            self.wrls
+                .x
+                .map(|_| self.wrls.last_delta / self.wrls_period_s())
+        } else {
+            self.ekf.as_ref().map(|e| e.vel())
+        }
+    }
+
+    fn wrls_period_s(&self) -> f64 {
+        self.wrls_period_s.max(1e-6)
+    }
+
+    pub fn ekf_fuses_sensors(&self, _ctx: &Ctx) -> bool {
+        self.mode_ekf_direct
+    }
+
+    pub fn event(
+        &mut self,
+        t: i64,
+        kind: &'static str,
+        source: Option<&str>,
+        message: String,
+        data: serde_json::Value,
+    ) {
+        self.events.push(EstimatorEvent {
+            time_us: t,
+            kind,
+            source: source.map(str::to_string),
+            message,
+            data,
+        });
+    }
+
+    fn throttled_event(
+        &mut self,
+        t: i64,
+        kind: &'static str,
+        source: &str,
+        message: String,
+        data: serde_json::Value,
+        ctx: &Ctx,
+    ) {
+        let key = format!("{kind}/{source}");
+        let every = (ctx.cfg.event_throttle_ms * 1000.0) as i64;
+        if self
+            .throttle
+            .get(&key)
+            .is_some_and(|&l| t - l < every && t >= l)
+        {
+            return;
+        }
+        self.throttle.insert(key, t);
+        self.event(t, kind, Some(source), message, data);
+    }
+
+    /// A sample failed its checks.
+    pub fn reject(&mut self, t: i64, source: &str, why: &str, ctx: &Ctx) {
+        let st = self.stats.entry(source.to_string()).or_default();
+        st.last_time_us = Some(t);
+        st.last_reject_reason = Some(why.to_string());
+        self.throttled_event(
+            t,
+            "sample_rejected",
+            source,
+            format!("{source}: {why}"),
+            serde_json::json!({ "reason": why }),
+            ctx,
+        );
+    }
+
+    pub fn debug_point(&mut self, t: i64, topic: &'static str, source: &str, v: Vector3<f64>) {
+        let p = self.debug.series.entry(topic).or_default();
+        p.time_us = t;
+        if p.source != source {
+            p.source = source.to_string();
+        }
+        p.value = [v.x, v.y, v.z];
+    }
+
+    /// A non-aiding source (IMU, attitude) contributed.
+    pub fn mark_used(&mut self, t: i64, source: &str) {
+        let st = self.stats.entry(source.to_string()).or_default();
+        st.last_time_us = Some(t);
+        st.last_fused_us = Some(t);
+        st.accepted += 1;
+    }
+
+    fn mark_aiding(&mut self, t: i64, source: &str, kind: &'static str) {
+        let st = self.stats.entry(source.to_string()).or_default();
+        st.kind = kind;
+        st.last_time_us = Some(t);
+        st.last_fused_us = Some(t);
+        st.accepted += 1;
+        self.last_aiding = Some(t);
+    }
+
+    fn record(&mut self, t: i64, source: &str, kind: &'static str, out: &UpdateOutcome, ctx: &Ctx) {
+        let st = self.stats.entry(source.to_string()).or_default();
+        let same_sample = st.last_time_us == Some(t);
+        st.kind = kind;
+        st.last_time_us = Some(t);
+        if !same_sample || out.test_ratio > st.test_ratio {
+            st.test_ratio = out.test_ratio;
+            st.innovation = out.innovation.clone();
+            st.innovation_var = out.innovation_var.clone();
+        }
+        if out.accepted {
+            st.accepted += 1;
+            st.last_fused_us = Some(t);
+            if AIDING.contains(&kind) {
+                self.last_aiding = Some(t);
+            }
+        } else {
+            st.rejected += 1;
+            st.last_reject_reason = Some(format!("innovation gate, ratio {:.2}", out.test_ratio));
+            let ratio = out.test_ratio;
+            self.throttled_event(
+                t,
+                "gate_reject",
+                source,
+                format!("{source}: innovation test ratio {ratio:.2} > 1, measurement rejected"),
+                serde_json::json!({ "test_ratio": ratio, "innovation": out.innovation }),
+                ctx,
+            );
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn update(
+        &mut self,
+        t: i64,
+        source: &str,
+        kind: &'static str,
+        y: DMatrix<f64>,
+        h: DMatrix<f64>,
+        r: DMatrix<f64>,
+        ctx: &Ctx,
+    ) -> bool {
+        let Some(ekf) = self.ekf.as_mut() else {
+            return false;
+        };
+        let dof = y.nrows();
+        let y = dvec(y.as_slice());
+        let out = ekf.update(&y, &h, &r, ctx.gate(dof), false);
+        let ok = out.accepted;
+        self.record(t, source, kind, &out, ctx);
+        ok
+    }
+
+    /// Fuse a world position (GNSS) or an odometry position (`block` = its offset).
+    #[allow(clippy::too_many_arguments)]
+    pub fn fuse_position(
+        &mut self,
+        t: i64,
+        source: &str,
+        kind: &'static str,
+        z: Vector3<f64>,
+        r: &Matrix3<f64>,
+        block: Option<&str>,
+        ctx: &Ctx,
+    ) -> bool {
+        if !self.mode_ekf_direct {
+            self.mark_aiding(t, source, kind);
+            return true;
+        }
+        let Some(ekf) = self.ekf.as_ref() else {
+            return false;
+        };
+        let n = ekf.n();
+        let mut h = ekf::h_pos(n);
+        let mut pred = ekf.pos();
+        if kind == "gnss" {
+            for i in 0..3 {
+                h[(i, ekf::IDX_BG + i)] = 1.0;
+                pred[i] += ekf.x[ekf::IDX_BG + i];
+            }
+        }
+        if let Some(b) = block.and_then(|s| ekf.block(s)) {
+            for i in 0..3 {
+                h[(i, b + i)] = 1.0;
+                pred[i] += ekf.x[b + i];
+            }
+        }
+        let y = z - pred;
+        let y = DMatrix::from_column_slice(3, 1, y.as_slice());
+        self.update(t, source, kind, y, h, dmat3(r), ctx)
+    }
+
+    pub fn fuse_world_velocity(
+        &mut self,
+        t: i64,
+        source: &str,
+        v: Vector3<f64>,
+        r: &Matrix3<f64>,
+        ctx: &Ctx,
+    ) {
+        if !self.mode_ekf_direct {
+            return;
+        }
+        let Some(ekf) = self.ekf.as_ref() else { return };
+        let n = ekf.n();
+        let mut h = DMatrix::zeros(3, n);
+        for i in 0..3 {
+            h[(i, IDX_V + i)] = 1.0;
+        }
+        let y = v - ekf.vel();
+        let y = DMatrix::from_column_slice(3, 1, y.as_slice());
+        self.update(t, source, "gnss", y, h, dmat3(r), ctx);
+    }
+
+    /// Fuse the first `rows` components of a body-frame velocity.
+    pub fn fuse_body_velocity(
+        &mut self,
+        t: i64,
+        source: &str,
+        vb: Vector3<f64>,
+        r: &mut Matrix3<f64>,
+        rows: usize,
+        ctx: &Ctx,
+    ) {
+        if !self.mode_ekf_direct {
+            if rows == 2 {
+                self.mark_aiding(t, source, "flow");
+            }
+            return;
+        }
+        let Some(ekf) = self.ekf.as_ref() else { return };
+        let rot = *self.att.q.to_rotation_matrix().matrix();
+        let pred = rot.transpose() * ekf.vel();
+        // Attitude error turns the velocity: |v|²·σ² per axis.
+        let att_var = ekf.vel().norm_squared() * self.att.cov.trace() / 3.0;
+        let h = odometry::h_body_velocity(ekf.n(), &rot, rows);
+        let mut y = DMatrix::zeros(rows, 1);
+        let mut rr = DMatrix::zeros(rows, rows);
+        for i in 0..rows {
+            y[(i, 0)] = vb[i] - pred[i];
+            for j in 0..rows {
+                rr[(i, j)] = r[(i, j)];
+            }
+            rr[(i, i)] += att_var;
+            r[(i, i)] += att_var;
+        }
+        let kind = if rows == 2 { "flow" } else { "odometry" };
+        self.update(t, source, kind, y, h, rr, ctx);
+    }
+
+    /// Fuse a height above the terrain: h = p_z − z_t.
+    pub fn fuse_height(&mut self, t: i64, source: &str, z: f64, var: f64, ctx: &Ctx) {
+        if !self.mode_ekf_direct {
+            self.mark_aiding(t, source, "range");
+            return;
+        }
+        let Some(ekf) = self.ekf.as_ref() else { return };
+        let mut h = DMatrix::zeros(1, ekf.n());
+        h[(0, IDX_P + 2)] = 1.0;
+        h[(0, ekf::IDX_TERRAIN)] = -1.0;
+        let y = DMatrix::from_element(1, 1, z - (ekf.x[IDX_P + 2] - ekf.x[ekf::IDX_TERRAIN]));
+        let r = DMatrix::from_element(1, 1, var);
+        self.update(t, source, "range", y, h, r, ctx);
+    }
+
+    /// Latest range-finder slant distance (within 200 ms).
+    pub fn latest_range(&self, t: i64) -> Option<f64> {
+        self.range
+            .values()
+            .filter(|(tr, _)| (t - tr).abs() < 200_000)
+            .max_by_key(|(tr, _)| *tr)
+            .map(|&(_, d)| d)
+    }
+
+    pub fn latest_height(&self, t: i64) -> Option<f64> {
+        self.latest_range(t)
+            .map(|d| d * attitude::cos_tilt(&self.att.q))
+    }
+
+    /// A range finder was fused (or is being fed) in the last second.
+    pub fn range_recent(&self, t: i64, ctx: &Ctx) -> bool {
+        self.range
+            .iter()
+            .any(|(s, (tr, _))| t - tr < 1_000_000 && ctx.usable(s))
+    }
+
+    /// Another position/velocity source than `source` was fused within the timeout.
+    pub fn other_aiding(&self, t: i64, source: &str, ctx: &Ctx) -> bool {
+        let timeout = (ctx.cfg.aiding_timeout_ms * 1000.0) as i64;
+        self.stats.iter().any(|(s, st)| {
+            s != source
+                && matches!(st.kind, "gnss" | "odometry")
+                && st.last_fused_us.is_some_and(|f| t - f <= timeout)
+        })
+    }
+
+    /// Heading from an odometry source in the fused frame (for the own attitude filter).
+    pub fn odometry_heading(&self) -> Option<f64> {
+        let t = self.t?;
+        self.odom
+            .values()
+            .filter_map(|o| o.heading)
+            .filter(|(th, _)| t - th < 200_000)
+            .max_by_key(|(th, _)| *th)
+            .map(|(_, y)| y)
+    }
+
+    /// Feed a gyro sample into every flow source's low-pass.
+    pub fn flow_gyro_sample(&mut self, t: i64, w: Vector3<f64>, ctx: &Ctx) {
+        for (s, st) in self.flow.iter_mut() {
+            let hz = ctx.cfg.source(s).gyro_lpf_hz;
+            st.lpf.update(w, t, hz);
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub fn initialise(
+        &mut self,
+        t: i64,
+        source: &str,
+        pos: Vector3<f64>,
+        pos_var: Vector3<f64>,
+        vel: Option<Vector3<f64>>,
+        vel_var: Option<f64>,
+        ctx: &Ctx,
+    ) {
+        let cfg = ctx.cfg;
+        let vv = vel_var.unwrap_or(cfg.init_vel_var);
+        if !self.mode_wrls {
+            let mut ekf = Ekf::new(
+                pos,
+                vel.unwrap_or_else(Vector3::zeros),
+                pos_var,
+                Vector3::repeat(vv),
+                cfg.init_accel_bias_var,
+            );
+            ekf.terrain_rw = cfg.terrain_rw;
+            let (b, bv) = (cfg.gnss_bias_std_m, cfg.gnss_bias_std_v_m);
+            ekf.set_gnss_bias_model(Vector3::new(b, b, bv), cfg.gnss_bias_tau_s);
+            if self.stats.get(source).is_some_and(|s| s.kind == "gnss")
+                || self.gnss.origin.is_some()
+            {
+                // Started from a fix: the ground's height in that frame is as uncertain
+                // as the fix's altitude.
+                ekf.p[(ekf::IDX_TERRAIN, ekf::IDX_TERRAIN)] = pos_var.z;
+            }
+            self.ekf = Some(ekf);
+        }
+        self.pred_t = Some(t);
+        self.wrls.init(t, pos, pos_var);
+        self.last_aiding = Some(t);
+        self.event(
+            t,
+            "initialised",
+            Some(source),
+            format!(
+                "filter initialised from {source} at ({:.2}, {:.2}, {:.2})",
+                pos.x, pos.y, pos.z
+            ),
+            serde_json::json!({ "position": [pos.x, pos.y, pos.z] }),
+        );
+    }
+
+    /// Advance WRLS ticks and the prediction to `t`.
+    fn advance(&mut self, t: i64, ctx: &Ctx) {
+        let cfg = ctx.cfg;
+        let period_us = (cfg.wrls_period_ms * 1000.0) as i64;
+        let outs = self.wrls.tick(t, period_us, cfg.wrls_no_delta_var);
+        for o in outs {
+            self.debug_point(o.t, "fusion_displace", "wrls", o.delta);
+            if self.mode_wrls {
+                self.debug_point(o.t, "pose_msg", "wrls", o.x);
+            }
+            if cfg.mode == Mode::WrlsEkf && self.ekf.is_some() {
+                let every = (1e6 / cfg.wrls_ekf_rate_hz.max(1e-3)) as i64;
+                if self.wrls_ekf_last.is_none_or(|l| o.t - l >= every) {
+                    self.wrls_ekf_last = Some(o.t);
+                    self.predict_to(o.t, ctx);
+                    if let Some(ekf) = self.ekf.as_ref() {
+                        let h = ekf::h_pos(ekf.n());
+                        let y = o.x - ekf.pos();
+                        let y = DMatrix::from_column_slice(3, 1, y.as_slice());
+                        let r = dmat3(&Matrix3::from_diagonal(&o.var));
+                        self.update(o.t, "wrls", "gnss", y, h, r, ctx);
+                    }
+                }
+            }
+        }
+        self.predict_to(t, ctx);
+    }
+
+    fn predict_to(&mut self, t: i64, ctx: &Ctx) {
+        let cfg = ctx.cfg;
+        let Some(t0) = self.pred_t else { return };
+        if t <= t0 {
+            return;
+        }
+        let dt = (t - t0) as f64 * 1e-6;
+        self.pred_t = Some(t);
+        let rot = *self.att.q.to_rotation_matrix().matrix();
+        let imu_timeout = (cfg.imu_timeout_ms * 1000.0) as i64;
+        let tilt_var = 0.5 * (self.att.cov[(0, 0)] + self.att.cov[(1, 1)]);
+        let held = self
+            .imu
+            .last
+            .as_ref()
+            .filter(|l| t - l.t <= imu_timeout)
+            .and_then(|l| l.accel.map(|a| (a, l.accel_var)));
+        let bias_rw = cfg.accel_bias_rw;
+        let drift: Vec<f64> = self
+            .ekf
+            .as_ref()
+            .map(|e| {
+                e.blocks
+                    .iter()
+                    .map(|(s, _)| cfg.source(s).drift_rw.unwrap_or(cfg.vo_drift_rw))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let (f_body, var) = match held {
+            Some((a, v)) if self.att.known() => (a, v + GRAVITY * GRAVITY * tilt_var),
+            _ => {
+                let ba = self
+                    .ekf
+                    .as_ref()
+                    .map_or(Vector3::zeros(), |e| e.accel_bias());
+                (
+                    rot.transpose() * Vector3::new(0.0, 0.0, GRAVITY) + ba,
+                    cfg.no_imu_accel_noise.powi(2),
+                )
+            }
+        };
+        let ba = self
+            .ekf
+            .as_ref()
+            .map_or(Vector3::zeros(), |e| e.accel_bias());
+        let a_world = rot * (f_body - ba) - Vector3::new(0.0, 0.0, GRAVITY);
+        self.monitors.predict(a_world, dt);
+        if let Some(ekf) = self.ekf.as_mut() {
+            ekf.predict(f_body, &rot, dt, var, bias_rw, &drift);
+        }
+    }
+
+    fn process_entry(&mut self, t: i64, source: &str, data: &SensorData, ctx: &Ctx) {
+        if !ctx.usable(source) {
+            return;
+        }
+        self.advance(t, ctx);
+        match data {
+            SensorData::Imu(i) => imu::process(self, ctx, t, source, i),
+            SensorData::Attitude(a) => imu::process_attitude(self, ctx, t, source, a),
+            SensorData::Gnss(g) => gnss::process(self, ctx, t, source, g),
+            SensorData::Flow(f) => flow::process(self, ctx, t, source, f),
+            SensorData::Range(r) => range::process(self, ctx, t, source, r),
+            SensorData::Odometry(o) => odometry::process(self, ctx, t, source, o),
+            SensorData::AutopilotEstimate(_) => {}
+        }
+        if let Some(st) = self.stats.get_mut(source) {
+            if st.kind.is_empty() {
+                st.kind = kind_str(data.kind());
+            }
+        }
+        self.t = Some(self.t.map_or(t, |t0| t0.max(t)));
+        self.post(t, ctx);
+    }
+
+    fn post(&mut self, t: i64, ctx: &Ctx) {
+        let cfg = ctx.cfg;
+        if let Some(ekf) = self.ekf.as_ref() {
+            if !ekf.is_finite() {
+                self.ekf = None;
+                self.wrls = Wrls::default();
+                for st in self.odom.values_mut() {
+                    st.align = None;
+                }
+                self.reset_counter = self.reset_counter.wrapping_add(1);
+                self.event(
+                    t,
+                    "reset",
+                    None,
+                    "numerical failure (non-finite state): filter restarted".into(),
+                    serde_json::json!({ "reset_counter": self.reset_counter }),
+                );
+                return;
+            }
+        }
+        if let (Some(p), Some(v)) = (self.position(), self.velocity()) {
+            if let Some(r) = self.monitors.check(t, p, v, cfg) {
+                self.apply_monitor_reset(t, r, ctx);
+            }
+            if !self.mode_wrls {
+                self.debug_point(t, "pose_msg", "ekf", p);
+            }
+        }
+        let used = self.used_sources(t, cfg);
+        if used != self.used_set {
+            let added: Vec<&String> = used.iter().filter(|s| !self.used_set.contains(s)).collect();
+            let removed: Vec<&String> =
+                self.used_set.iter().filter(|s| !used.contains(s)).collect();
+            let msg = format!("sources now {used:?} (added {added:?}, removed {removed:?})");
+            let data = serde_json::json!({ "sources": used, "added": added, "removed": removed });
+            self.event(t, "source_switch", None, msg, data);
+            self.used_set = used;
+        }
+    }
+
+    fn apply_monitor_reset(&mut self, t: i64, r: MonitorReset, ctx: &Ctx) {
+        let cfg = ctx.cfg;
+        let Some(p) = self.position() else { return };
+        let v = self.velocity().unwrap_or_else(Vector3::zeros);
+        let (pos, vel) = if r.horizontal_only {
+            (
+                Vector3::new(r.position.x, r.position.y, p.z),
+                Vector3::new(r.velocity.x, r.velocity.y, v.z),
+            )
+        } else {
+            (r.position, r.velocity)
+        };
+        let zvar = self.ekf.as_ref().map_or(cfg.reset_pos_var, |e| e.p[(2, 2)]);
+        let pos_var = if r.horizontal_only {
+            Vector3::new(cfg.reset_pos_var, cfg.reset_pos_var, zvar)
+        } else {
+            Vector3::repeat(cfg.reset_pos_var)
+        };
+        if let Some(ekf) = self.ekf.as_mut() {
+            ekf.reset_pos_vel(pos, Some(vel), pos_var, cfg.reset_vel_var);
+        }
+        self.wrls.reset(pos, pos_var);
+        for st in self.odom.values_mut() {
+            st.need_realign = true;
+        }
+        self.reset_counter = self.reset_counter.wrapping_add(1);
+        let from = [p.x, p.y, p.z];
+        let to = [pos.x, pos.y, pos.z];
+        self.event(
+            t,
+            "monitor_reset",
+            None,
+            format!("reset to the {} monitor: {}", r.monitor, r.reason),
+            serde_json::json!({
+                "monitor": r.monitor, "reason": r.reason, "from": from, "to": to,
+                "position_departure_m": r.pos_err, "velocity_departure_mps": r.vel_err,
+                "reset_counter": self.reset_counter,
+            }),
+        );
+    }
+
+    fn used_sources(&self, t: i64, cfg: &EstimatorConfig) -> Vec<String> {
+        let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
+        self.stats
+            .iter()
+            .filter(|(_, st)| st.last_fused_us.is_some_and(|f| t - f <= timeout))
+            .map(|(s, _)| s.clone())
+            .collect()
+    }
+
+    fn validity(&self, cfg: &EstimatorConfig) -> Option<String> {
+        if !self.initialised() {
+            return Some("not initialised".into());
+        }
+        let t = self.t.unwrap_or(0);
+        if let Some(ekf) = self.ekf.as_ref() {
+            if !ekf.is_finite() {
+                return Some("non-finite state".into());
+            }
+        }
+        if !self.att.known() {
+            return Some("no attitude".into());
+        }
+        let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
+        match self.last_aiding {
+            Some(l) if t - l <= timeout => {}
+            _ => {
+                return Some(format!(
+                    "no position or velocity source fused for more than {} ms",
+                    cfg.aiding_timeout_ms
+                ))
+            }
+        }
+        let var = match (&self.ekf, self.mode_wrls) {
+            (Some(e), false) => e.cov3(IDX_P).diagonal(),
+            _ => self.wrls.var,
+        };
+        let max = cfg.max_pos_std_m * cfg.max_pos_std_m;
+        if var.iter().any(|v| !v.is_finite() || *v > max) {
+            return Some(format!(
+                "position uncertainty above {} m (1σ)",
+                cfg.max_pos_std_m
+            ));
+        }
+        None
+    }
+}
+
+/// Order of samples at equal times: prediction inputs first.
+fn rank(k: SensorKind) -> u8 {
+    match k {
+        SensorKind::Imu => 0,
+        SensorKind::Attitude => 1,
+        SensorKind::Range => 2,
+        SensorKind::Flow => 3,
+        SensorKind::Odometry => 4,
+        SensorKind::Gnss => 5,
+        SensorKind::AutopilotEstimate => 6,
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+struct Key {
+    t: i64,
+    rank: u8,
+    source: Arc<str>,
+    seq: u64,
+}
+
+#[derive(Debug, Clone)]
+struct Entry {
+    key: Key,
+    data: SensorData,
+    processed: bool,
+}
+
+/// The estimator facade.
+pub struct Estimator {
+    cfg: EstimatorConfig,
+    core: Core,
+    log: VecDeque<Entry>,
+    snaps: VecDeque<(Key, Core)>,
+    clocks: BTreeMap<String, ClockMap>,
+    usable: BTreeMap<String, (bool, String)>,
+    gates: [f64; 7],
+    seq: u64,
+    /// Samples older than this are dropped (history cleared by a command).
+    barrier: Option<i64>,
+    emitted: BTreeSet<(i64, &'static str, Option<String>, String)>,
+    late_dropped: u64,
+    late_event_t: Option<i64>,
+}
+
+/// Snapshot at least this often without IMU samples, µs.
+const SNAPSHOT_EVERY_US: i64 = 20_000;
+
+impl Estimator {
+    pub fn new(cfg: EstimatorConfig) -> Self {
+        let mut gates = [0.0; 7];
+        for (k, g) in gates.iter_mut().enumerate().skip(1) {
+            *g = ekf::chi2_gate(k, cfg.gate_sigma);
+        }
+        Self {
+            core: Core::new(&cfg),
+            cfg,
+            log: VecDeque::new(),
+            snaps: VecDeque::new(),
+            clocks: BTreeMap::new(),
+            usable: BTreeMap::new(),
+            gates,
+            seq: 0,
+            barrier: None,
+            emitted: BTreeSet::new(),
+            late_dropped: 0,
+            late_event_t: None,
+        }
+    }
+
+    pub fn config(&self) -> &EstimatorConfig {
+        &self.cfg
+    }
+
+    /// Feed one sample; returns the events it caused.
+    pub fn process(&mut self, s: &Sample) -> Vec<EstimatorEvent> {
+        let kind = s.data.kind();
+        if kind == SensorKind::AutopilotEstimate {
+            return vec![];
+        }
+        let src: &str = &s.source;
+        if self.cfg.sources.get(src).is_some_and(|c| !c.fuse) {
+            return vec![];
+        }
+        let latency = self.cfg.latency_us(src, kind);
+        let window = (self.cfg.clock_window_s * 1e6) as i64;
+        let jump = (self.cfg.clock_jump_s * 1e6) as i64;
+        let t = self.clocks.entry(src.to_string()).or_default().map(
+            s.stamp_us,
+            s.arrival_us,
+            latency,
+            window,
+            jump,
+        );
+        let key = Key {
+            t,
+            rank: rank(kind),
+            source: s.source.clone(),
+            seq: self.seq,
+        };
+        self.seq += 1;
+        let too_old = self.barrier.is_some_and(|b| t < b)
+            || self.snaps.front().is_some_and(|(k, _)| key < *k);
+        if too_old {
+            self.late_dropped += 1;
+            if self.late_event_t.is_none_or(|l| t - l > 1_000_000 || t < l) {
+                self.late_event_t = Some(t);
+                let ev = EstimatorEvent {
+                    time_us: t,
+                    kind: "late_drop",
+                    source: Some(src.to_string()),
+                    message: format!(
+                        "{src}: sample older than the {} ms history dropped",
+                        self.cfg.history_ms
+                    ),
+                    data: serde_json::json!({ "dropped": self.late_dropped }),
+                };
+                return vec![ev];
+            }
+            return vec![];
+        }
+        let pos = self.log.partition_point(|e| e.key < key);
+        self.log.insert(
+            pos,
+            Entry {
+                key: key.clone(),
+                data: s.data.clone(),
+                processed: false,
+            },
+        );
+        let start = if pos + 1 == self.log.len() {
+            pos
+        } else {
+            // Late: restore the snapshot before it and re-run from there.
+            let i = self.snaps.partition_point(|(k, _)| *k <= key);
+            let Some(si) = i.checked_sub(1) else {
+                self.log.remove(pos);
+                return vec![];
+            };
+            let (skey, core) = self.snaps[si].clone();
+            self.core = core;
+            self.snaps.truncate(si);
+            self.log.partition_point(|e| e.key < skey)
+        };
+        let out = self.run_from(start);
+        self.prune();
+        out
+    }
+
+    fn run_from(&mut self, start: usize) -> Vec<EstimatorEvent> {
+        let mut out = vec![];
+        let ctx = Ctx {
+            cfg: &self.cfg,
+            usable: &self.usable,
+            gates: self.gates,
+        };
+        for i in start..self.log.len() {
+            let e = &self.log[i];
+            let snap = e.key.rank == 0
+                || self
+                    .snaps
+                    .back()
+                    .is_none_or(|(k, _)| e.key.t - k.t >= SNAPSHOT_EVERY_US);
+            if snap {
+                self.snaps.push_back((e.key.clone(), self.core.clone()));
+            }
+            self.core
+                .process_entry(e.key.t, &e.key.source, &e.data, &ctx);
+            for ev in self.core.events.drain(..) {
+                let sig = (ev.time_us, ev.kind, ev.source.clone(), ev.message.clone());
+                if self.emitted.insert(sig) {
+                    out.push(ev);
+                }
+            }
+            self.log[i].processed = true;
+        }
+        out
+    }
+
+    fn prune(&mut self) {
+        let Some(newest) = self.log.back().map(|e| e.key.t) else {
+            return;
+        };
+        let horizon = newest - (self.cfg.history_ms * 1000.0) as i64;
+        while self.snaps.len() >= 2 && self.snaps[1].0.t < horizon {
+            self.snaps.pop_front();
+        }
+        if let Some((k, _)) = self.snaps.front() {
+            while self.log.front().is_some_and(|e| e.key < *k) {
+                self.log.pop_front();
+            }
+        }
+        let keep = horizon - 1_000_000;
+        while self.emitted.first().is_some_and(|s| s.0 < keep) {
+            self.emitted.pop_first();
+        }
+    }
+
+    /// Drop the history (after a command changed the state): later samples older than
+    /// now cannot be re-run across the change.
+    fn clear_history(&mut self) {
+        self.barrier = self.core.t;
+        self.log.clear();
+        self.snaps.clear();
+    }
+
+    /// Latest fused estimate (None before initialisation).
+    pub fn pose(&self) -> Option<FusedPose> {
+        let c = &self.core;
+        if !c.initialised() {
+            return None;
+        }
+        let (time_us, position, velocity, position_cov, velocity_cov) = if c.mode_wrls {
+            let period = self.cfg.wrls_period_ms * 1e-3;
+            (
+                c.wrls.t?,
+                c.wrls.x?,
+                c.wrls.last_delta / period,
+                Matrix3::from_diagonal(&c.wrls.var),
+                Matrix3::from_diagonal(&(c.wrls.last_delta_var / (period * period))),
+            )
+        } else {
+            let e = c.ekf.as_ref()?;
+            (c.pred_t?, e.pos(), e.vel(), e.cov3(IDX_P), e.cov3(IDX_V))
+        };
+        let mut invalid_reason = c.validity(&self.cfg);
+        let finite = position
+            .iter()
+            .chain(velocity.iter())
+            .all(|v| v.is_finite())
+            && position_cov.iter().all(|v| v.is_finite())
+            && velocity_cov.iter().all(|v| v.is_finite())
+            && c.att.q.coords.iter().all(|v| v.is_finite());
+        if !finite && invalid_reason.is_none() {
+            invalid_reason = Some("non-finite value in the estimate".into());
+        }
+        Some(FusedPose {
+            time_us,
+            position,
+            velocity,
+            orientation: c.att.q,
+            angular_velocity: c.imu.rate.map(|r| r.1),
+            position_cov,
+            velocity_cov,
+            orientation_cov: c.att.cov,
+            sources: c.used_set.clone(),
+            reset_counter: c.reset_counter,
+            valid: invalid_reason.is_none(),
+            invalid_reason,
+            origin: c
+                .gnss
+                .origin
+                .map(|o| (o.origin_lat_deg, o.origin_lon_deg, o.origin_alt_m)),
+        })
+    }
+
+    /// Per-source debug series of the last update.
+    pub fn debug(&self) -> &DebugSeries {
+        &self.core.debug
+    }
+
+    /// The health layer says whether a source may be fused.
+    pub fn set_source_usable(
+        &mut self,
+        source: &str,
+        usable: bool,
+        reason: &str,
+    ) -> Vec<EstimatorEvent> {
+        let before = self.usable.get(source).is_none_or(|u| u.0);
+        self.usable
+            .insert(source.to_string(), (usable, reason.to_string()));
+        if before == usable {
+            return vec![];
+        }
+        vec![EstimatorEvent {
+            time_us: self.core.t.unwrap_or(0),
+            kind: "source_usable",
+            source: Some(source.to_string()),
+            message: format!(
+                "{source} {} by health: {reason}",
+                if usable { "enabled" } else { "disabled" }
+            ),
+            data: serde_json::json!({ "usable": usable, "reason": reason }),
+        }]
+    }
+
+    /// Make the current horizontal position the new origin (a discontinuity).
+    pub fn reset_origin(&mut self, now_us: i64) -> Vec<EstimatorEvent> {
+        let c = &mut self.core;
+        let Some(p) = c.position() else {
+            return vec![];
+        };
+        let d = Vector3::new(-p.x, -p.y, 0.0);
+        if let Some(ekf) = c.ekf.as_mut() {
+            ekf.shift_position(d);
+        }
+        c.wrls.shift(d);
+        c.monitors.shift(d);
+        for st in c.odom.values_mut() {
+            if let Some(a) = st.align.as_mut() {
+                a.trans += d;
+            }
+        }
+        if let Some(o) = c.gnss.origin {
+            let (lat, lon, alt) = o.to_geodetic(Vector3::new(p.x, p.y, 0.0));
+            c.gnss.origin = Some(crate::geo::LocalEnu::new(lat, lon, alt));
+            for (_, last) in c.gnss.last.values_mut() {
+                *last += d;
+            }
+        }
+        c.reset_counter = c.reset_counter.wrapping_add(1);
+        let ev = EstimatorEvent {
+            time_us: now_us,
+            kind: "reset",
+            source: None,
+            message: format!("origin reset: moved by ({:.2}, {:.2}) m", d.x, d.y),
+            data: serde_json::json!({ "shift": [d.x, d.y, d.z], "reset_counter": c.reset_counter }),
+        };
+        self.clear_history();
+        vec![ev]
+    }
+
+    /// Start the flow scale calibration (ArduPilot style); the result comes as a
+    /// `calibration_result` event.
+    pub fn start_flow_calibration(&mut self, now_us: i64) -> Vec<EstimatorEvent> {
+        self.core.flow_cal.start(now_us);
+        for (_, s) in self.snaps.iter_mut() {
+            s.flow_cal.start(now_us);
+        }
+        vec![EstimatorEvent {
+            time_us: now_us,
+            kind: "calibration_started",
+            source: None,
+            message: "flow scale calibration started: fly with horizontal motion".into(),
+            data: serde_json::json!({ "samples_per_axis": self.cfg.flow_cal_samples }),
+        }]
+    }
+
+    /// Innovation test ratio of the last update per source: 0..; > 1 rejected.
+    pub fn test_ratios(&self) -> impl Iterator<Item = (&str, f64)> {
+        self.core
+            .stats
+            .iter()
+            .filter(|(_, s)| !s.innovation.is_empty())
+            .map(|(k, s)| (k.as_str(), s.test_ratio))
+    }
+
+    pub fn state_summary(&self) -> EstimatorStatus {
+        let c = &self.core;
+        let invalid_reason = c.validity(&self.cfg);
+        let mut sources = c.stats.clone();
+        for (s, st) in sources.iter_mut() {
+            st.usable = self.usable.get(s).is_none_or(|u| u.0);
+            st.segment = c.odom.get(s).map(|o| o.segment);
+        }
+        let (trace, std, bias) = match (&c.ekf, c.mode_wrls) {
+            (Some(e), false) => {
+                let d = e.cov3(IDX_P).diagonal();
+                let b = e.accel_bias();
+                (
+                    Some(e.p.trace()),
+                    Some([d.x.sqrt(), d.y.sqrt(), d.z.sqrt()]),
+                    Some([b.x, b.y, b.z]),
+                )
+            }
+            _ => (
+                c.wrls.x.map(|_| c.wrls.var.sum()),
+                c.wrls.x.map(|_| {
+                    [
+                        c.wrls.var.x.sqrt(),
+                        c.wrls.var.y.sqrt(),
+                        c.wrls.var.z.sqrt(),
+                    ]
+                }),
+                None,
+            ),
+        };
+        EstimatorStatus {
+            mode: self.cfg.mode.as_str(),
+            initialised: c.initialised(),
+            valid: invalid_reason.is_none(),
+            invalid_reason,
+            time_us: c.t,
+            origin: c
+                .gnss
+                .origin
+                .map(|o| (o.origin_lat_deg, o.origin_lon_deg, o.origin_alt_m)),
+            reset_counter: c.reset_counter,
+            sources_used: c.used_set.clone(),
+            attitude_source: c.att.source.as_str(),
+            covariance_trace: trace,
+            position_std: std,
+            accel_bias: bias,
+            gyro_bias: [c.imu.gyro_bias.x, c.imu.gyro_bias.y, c.imu.gyro_bias.z],
+            sources,
+            calibration: CalibrationStatus {
+                state: c.flow_cal.state,
+                source: c.flow_cal.source.clone(),
+                samples: [c.flow_cal.samples[0].len(), c.flow_cal.samples[1].len()],
+                result: c.flow_cal.result.map(|r| [r.x, r.y]),
+            },
+            monitor: c.monitors.last,
+            history_len: self.log.len(),
+            late_dropped: self.late_dropped,
+            clock_offsets_us: self
+                .clocks
+                .iter()
+                .filter_map(|(s, c)| c.offset_us().map(|o| (s.clone(), o)))
+                .collect(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,289 @@
+//! Visual odometry (T265, VIO, MAVLink ODOMETRY): pose in its own world frame.
+//!
+//! Checks: finite pose, quality not "failed". Preprocessing: camera → body with the
+//! configured extrinsics. Control: a *segment* is a stretch over which the odometry
+//! frame is aligned to the fused frame (yaw + translation, fixed when the segment
+//! starts so that the source's current pose maps onto the current estimate: no jump).
+//! A new segment starts on the first sample, on a reset-counter change, on a position
+//! step not explained by the velocity (jump), after a gap, after a monitor reset, or
+//! after innovations were rejected for `vo_reject_realign_s`. Fuse: the aligned
+//! position as `p + b` (b = the segment's drift offset state, random walk), and the
+//! body-frame velocity.
+
+use super::attitude::{wrap_pi, yaw_of};
+use super::ekf::IDX_V;
+use super::{Core, Ctx};
+use crate::sample::Odometry;
+use nalgebra::{DMatrix, Matrix3, Quaternion, UnitQuaternion, Vector3};
+
+/// Alignment of one segment: world = rot · odom + trans.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Align {
+    pub rot: UnitQuaternion<f64>,
+    pub trans: Vector3<f64>,
+    /// Yaw variance of the alignment (our heading uncertainty when it was made), rad².
+    pub yaw_var: f64,
+    /// Body position in the odometry frame at alignment.
+    pub anchor: Vector3<f64>,
+}
+
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct OdomState {
+    pub segment: u32,
+    pub align: Option<Align>,
+    /// (time, body position in the odometry frame, body velocity in the odometry frame).
+    pub last: Option<(i64, Vector3<f64>, Option<Vector3<f64>>)>,
+    pub reset_counter: Option<u8>,
+    pub reject_since: Option<i64>,
+    pub need_realign: bool,
+    /// Heading of the body in the fused frame from this source (time, yaw).
+    pub heading: Option<(i64, f64)>,
+}
+
+/// The body's pose and velocity from a camera odometry sample.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BodyOdom {
+    pub pos: Vector3<f64>,
+    pub att: UnitQuaternion<f64>,
+    /// Body velocity in body axes.
+    pub vel_body: Option<Vector3<f64>>,
+    pub pos_cov: Option<Matrix3<f64>>,
+    pub vel_cov: Option<Matrix3<f64>>,
+}
+
+fn finite3(v: &Vector3<f64>) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+/// Checks of one sample.
+pub fn checks(o: &Odometry) -> Result<(), &'static str> {
+    if !finite3(&o.position) || !super::attitude::check_quaternion(&o.orientation) {
+        return Err("pose not finite");
+    }
+    if o.quality == Some(-1) {
+        return Err("source reports failure (quality -1)");
+    }
+    Ok(())
+}
+
+/// Camera pose → body pose with extrinsics: `q_bc` rotates camera axes into body
+/// axes, `t_bc` is the camera position in the body frame.
+pub fn to_body(o: &Odometry, q_bc: &UnitQuaternion<f64>, t_bc: &Vector3<f64>) -> BodyOdom {
+    let att = o.orientation * q_bc.inverse();
+    let pos = o.position - att * t_bc;
+    let omega_b = o.angular_velocity.map(|w| q_bc * w);
+    let vel_body = o.velocity.filter(finite3).map(|v| {
+        let v_cam_point = q_bc * v;
+        match omega_b {
+            Some(w) if finite3(&w) => v_cam_point - w.cross(t_bc),
+            _ => v_cam_point,
+        }
+    });
+    let rot = q_bc.to_rotation_matrix();
+    let pos_cov = o
+        .pose_cov
+        .map(|c| c.fixed_view::<3, 3>(0, 0).into_owned())
+        .filter(|c| c.iter().all(|v| v.is_finite()) && c.trace() > 0.0);
+    let vel_cov = o
+        .twist_cov
+        .map(|c| {
+            let c3 = c.fixed_view::<3, 3>(0, 0).into_owned();
+            rot.matrix() * c3 * rot.matrix().transpose()
+        })
+        .filter(|c| c.iter().all(|v| v.is_finite()) && c.trace() > 0.0);
+    BodyOdom {
+        pos,
+        att,
+        vel_body,
+        pos_cov,
+        vel_cov,
+    }
+}
+
+pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
+    let cfg = ctx.cfg;
+    if let Err(why) = checks(o) {
+        core.reject(t, source, why, ctx);
+        return;
+    }
+    let sc = cfg.source(source);
+    let [qx, qy, qz, qw] = sc.extrinsics_rotation;
+    let q_bc = UnitQuaternion::from_quaternion(Quaternion::new(qw, qx, qy, qz));
+    let t_bc = Vector3::from(sc.extrinsics_translation);
+    let b = to_body(o, &q_bc, &t_bc);
+    if !core.att.known() {
+        return;
+    }
+    if !core.initialised() {
+        let z = core.latest_height(t).unwrap_or(0.0);
+        let var = Vector3::repeat(cfg.init_pos_var);
+        let v = b.vel_body.map(|vb| core.att.q * vb);
+        let v_var = v.map(|_| cfg.vo_vel_noise.powi(2));
+        core.initialise(t, source, Vector3::new(0.0, 0.0, z), var, v, v_var, ctx);
+    }
+    // Control: does a new segment start?
+    let mut st = core.odom.remove(source).unwrap_or_default();
+    let reject_us = (cfg.vo_reject_realign_s * 1e6) as i64;
+    let mut reason: Option<String> = None;
+    if st.align.is_none() {
+        reason = Some("source started".into());
+    } else if st.need_realign {
+        reason = Some("filter was reset".into());
+    } else if o.reset_counter.is_some() && o.reset_counter != st.reset_counter {
+        reason = Some(format!(
+            "reset counter {:?} → {:?}",
+            st.reset_counter, o.reset_counter
+        ));
+    } else if let Some((t0, p0, v0)) = st.last {
+        let dt = (t - t0) as f64 * 1e-6;
+        if dt > cfg.vo_reject_realign_s {
+            reason = Some(format!("gap of {dt:.2} s"));
+        } else {
+            let v_odom = v0
+                .or_else(|| b.vel_body.map(|vb| b.att * vb))
+                .unwrap_or_else(Vector3::zeros);
+            let step = b.pos - p0 - v_odom * dt;
+            if step.norm() > cfg.vo_jump_m {
+                reason = Some(format!("jump of {:.2} m", step.norm()));
+            }
+        }
+    }
+    if reason.is_none() && st.reject_since.is_some_and(|r| t - r > reject_us) {
+        reason = Some("innovations rejected".into());
+    }
+    st.reset_counter = o.reset_counter;
+    let v_odom_now = b.vel_body.map(|vb| b.att * vb);
+    let new_segment = reason.is_some();
+    if let Some(why) = reason {
+        let yaw_align = wrap_pi(yaw_of(&core.att.q) - yaw_of(&b.att));
+        let rot = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_align);
+        let here = core.position().unwrap_or_else(Vector3::zeros);
+        st.align = Some(Align {
+            rot,
+            trans: here - rot * b.pos,
+            yaw_var: core.att.cov[(2, 2)],
+            anchor: b.pos,
+        });
+        st.segment += 1;
+        st.need_realign = false;
+        st.reject_since = None;
+        if let Some(ekf) = core.ekf.as_mut() {
+            ekf.start_block(source);
+        }
+        core.event(
+            t,
+            "segment",
+            Some(source),
+            format!("odometry segment {} started: {why}", st.segment),
+            serde_json::json!({ "segment": st.segment, "reason": why, "yaw_align": yaw_align }),
+        );
+    }
+    let Some(al) = st.align.clone() else {
+        core.odom.insert(source.to_string(), st);
+        return;
+    };
+    let z = al.rot * b.pos + al.trans;
+    st.heading = Some((t, wrap_pi(yaw_of(&b.att) + yaw_of(&al.rot))));
+    core.debug_point(t, "oriUAV_t265", source, z);
+    // WRLS: frame-to-frame displacement within a segment.
+    if let (false, Some((t0, p0, _))) = (new_segment, st.last) {
+        let dt = (t - t0) as f64 * 1e-6;
+        if dt > 0.0 {
+            let delta = al.rot * (b.pos - p0);
+            let vel_var = b
+                .vel_cov
+                .map_or(cfg.vo_vel_noise.powi(2), |c| c.trace() / 3.0);
+            let drift = sc.drift_rw.unwrap_or(cfg.vo_drift_rw);
+            let var = vel_var * dt * dt + drift * drift * dt;
+            core.debug_point(t, "origin_dt265", source, delta);
+            core.wrls
+                .add_relative(source, delta, Vector3::repeat(var), dt);
+        }
+    }
+    st.last = Some((t, b.pos, v_odom_now));
+    core.odom.insert(source.to_string(), st);
+
+    // Fuse position: z = p + b.
+    let c = match sc.noise {
+        Some(s) => Matrix3::identity() * (s * s),
+        None => b
+            .pos_cov
+            .unwrap_or_else(|| Matrix3::identity() * cfg.vo_pos_noise.powi(2)),
+    };
+    let rm = al.rot.to_rotation_matrix();
+    let lever = (b.pos - al.anchor).xy().norm_squared();
+    let mut r = rm.matrix() * c * rm.matrix().transpose();
+    r[(0, 0)] += al.yaw_var * lever;
+    r[(1, 1)] += al.yaw_var * lever;
+    let accepted = core.fuse_position(t, source, "odometry", z, &r, Some(source), ctx);
+    let direct = core.ekf_fuses_sensors(ctx);
+    if let Some(st) = core.odom.get_mut(source) {
+        if accepted || !direct {
+            st.reject_since = None;
+        } else if st.reject_since.is_none() {
+            st.reject_since = Some(t);
+        }
+    }
+    // Fuse velocity (body frame).
+    if cfg.vo_fuse_velocity {
+        if let Some(vb) = b.vel_body {
+            let mut rv = match sc.vel_noise {
+                Some(s) => Matrix3::identity() * (s * s),
+                None => b
+                    .vel_cov
+                    .unwrap_or_else(|| Matrix3::identity() * cfg.vo_vel_noise.powi(2)),
+            };
+            core.fuse_body_velocity(t, source, vb, &mut rv, 3, ctx);
+        }
+    }
+}
+
+/// Jacobian of a body-frame velocity measurement: rows of Rᵀ at the velocity states.
+pub fn h_body_velocity(n: usize, rot: &Matrix3<f64>, rows: usize) -> DMatrix<f64> {
+    let rt = rot.transpose();
+    let mut h = DMatrix::zeros(rows, n);
+    for i in 0..rows {
+        for j in 0..3 {
+            h[(i, IDX_V + j)] = rt[(i, j)];
+        }
+    }
+    h
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn extrinsics_move_the_camera_pose_to_the_body() {
+        // Camera 10 cm forward of the body, looking forward (identity rotation); the
+        // vehicle yawed 90°: the body is 10 cm "behind" the camera along world -y.
+        let q = UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        let o = Odometry {
+            position: Vector3::new(1.0, 2.0, 0.5),
+            orientation: q,
+            velocity: Some(Vector3::new(0.0, 0.0, 0.0)),
+            angular_velocity: Some(Vector3::new(0.0, 0.0, 1.0)),
+            pose_cov: None,
+            twist_cov: None,
+            frame_id: "odom".into(),
+            child_frame_id: "camera".into(),
+            reset_counter: None,
+            quality: None,
+        };
+        let b = to_body(
+            &o,
+            &UnitQuaternion::identity(),
+            &Vector3::new(0.1, 0.0, 0.0),
+        );
+        assert!(
+            (b.pos - Vector3::new(1.0, 1.9, 0.5)).norm() < 1e-12,
+            "{}",
+            b.pos
+        );
+        // Camera still while yawing at 1 rad/s about the body: the body origin moves
+        // at ω × (-t) = (0, -0.1, 0)… in body axes: -(ω × t_bc) = (0, -0.1, 0).
+        let v = b.vel_body.expect("velocity");
+        assert!((v - Vector3::new(0.0, -0.1, 0.0)).norm() < 1e-12, "{v}");
+    }
+}

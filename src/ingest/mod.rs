@@ -1,0 +1,518 @@
+//! Ingest: payload bytes of one configured input → validated [`Sample`]s, with the
+//! per-input counters that `/api/v1/status` shows.
+//!
+//! [`Ingest::accept`] is synchronous and transport-free, so it is tested without a
+//! network; [`zenoh_in`] only wires Zenoh subscribers to it and forwards the samples to
+//! the estimator task through a bounded channel (overload is counted as `dropped`).
+
+pub mod zenoh_in;
+
+use crate::codec::{self, Format, RosType};
+use crate::config::{Config, InputConfig, ERROR_LOG_INTERVAL_MS};
+use crate::sample::{Decoded, Micros, Sample};
+use serde::Serialize;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, Mutex};
+
+/// Host clock, µs since the Unix epoch. The only clock read on the ingest path.
+pub fn now_us() -> Micros {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_micros() as Micros)
+        .unwrap_or(0)
+}
+
+/// Why one payload was not turned into samples.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Rejection {
+    Decode(codec::DecodeError),
+    /// The key says the payload is another ROS type than the input expects.
+    WrongType(String),
+    /// The sensor's timestamp went backwards.
+    TimeBackwards {
+        previous_us: Micros,
+        now_us: Micros,
+    },
+}
+
+impl std::fmt::Display for Rejection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Rejection::Decode(e) => write!(f, "{e}"),
+            Rejection::WrongType(s) => f.write_str(s),
+            Rejection::TimeBackwards {
+                previous_us,
+                now_us,
+            } => write!(
+                f,
+                "timestamp went backwards by {:.3} ms ({previous_us} µs → {now_us} µs)",
+                (previous_us - now_us) as f64 / 1000.0
+            ),
+        }
+    }
+}
+
+/// Counters and recent history of one input. Counters are atomics because the Zenoh
+/// callbacks of different inputs run on different threads.
+#[derive(Debug, Default)]
+pub struct InputCounters {
+    /// Payloads that arrived.
+    pub received: AtomicU64,
+    /// Samples decoded and accepted.
+    pub accepted: AtomicU64,
+    /// Payloads (or frames) rejected: malformed, NaN, wrong type, time backwards…
+    pub rejected: AtomicU64,
+    /// Valid messages of no use to this input (another sensor kind, our own MAVLink).
+    pub ignored: AtomicU64,
+    /// Accepted samples dropped because the estimator queue was full.
+    pub dropped: AtomicU64,
+}
+
+#[derive(Debug, Default)]
+struct InputHistory {
+    last_error: Option<String>,
+    last_error_us: Option<Micros>,
+    last_arrival_us: Option<Micros>,
+    last_stamp_us: Option<Micros>,
+    rate: RateMeter,
+    last_log_us: Option<Micros>,
+    suppressed_logs: u64,
+}
+
+/// Arrival rate over roughly one-second windows.
+#[derive(Debug, Default, Clone)]
+struct RateMeter {
+    window_start_us: Option<Micros>,
+    count: u64,
+    rate_hz: f64,
+}
+
+const RATE_WINDOW_US: Micros = 1_000_000;
+
+impl RateMeter {
+    fn tick(&mut self, now: Micros) {
+        let start = *self.window_start_us.get_or_insert(now);
+        self.count += 1;
+        let elapsed = now - start;
+        if elapsed >= RATE_WINDOW_US {
+            self.rate_hz = self.count as f64 * 1e6 / elapsed as f64;
+            self.window_start_us = Some(now);
+            self.count = 0;
+        }
+    }
+}
+
+/// One configured input and its state.
+#[derive(Debug)]
+pub struct InputState {
+    pub config: InputConfig,
+    pub id: Arc<str>,
+    pub counters: InputCounters,
+    history: Mutex<InputHistory>,
+}
+
+/// Status of one input as `/api/v1/status` shows it.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct InputStatus {
+    pub id: String,
+    pub kind: crate::sample::SensorKind,
+    pub key: String,
+    pub format: Format,
+    #[serde(rename = "type")]
+    pub ros_type: Option<String>,
+    pub enabled: bool,
+    pub received: u64,
+    pub accepted: u64,
+    pub rejected: u64,
+    pub ignored: u64,
+    pub dropped: u64,
+    pub last_error: Option<String>,
+    pub last_error_age_ms: Option<f64>,
+    pub rate_hz: f64,
+    pub expected_rate_hz: f64,
+    pub age_ms: Option<f64>,
+    pub health: IngestHealth,
+}
+
+/// Ingest-level health of a stream: is data arriving, at the rate expected, and
+/// decodable. The estimator's sensor checks add their verdicts on top of this.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct IngestHealth {
+    pub state: HealthState,
+    pub reasons: Vec<Reason>,
+}
+
+#[derive(Debug, Clone, Copy, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum HealthState {
+    Ok,
+    Degraded,
+    Stale,
+    Disabled,
+    NoData,
+}
+
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Reason {
+    pub code: &'static str,
+    pub text: String,
+}
+
+/// Recent rejections make a stream `degraded` for this long.
+const RECENT_ERROR_MS: f64 = 5000.0;
+/// Below this fraction of the expected rate a stream is `degraded`.
+const LOW_RATE_FRACTION: f64 = 0.5;
+
+impl InputState {
+    pub fn new(config: InputConfig) -> Self {
+        Self {
+            id: Arc::from(config.id.as_str()),
+            config,
+            counters: InputCounters::default(),
+            history: Mutex::new(InputHistory::default()),
+        }
+    }
+
+    fn history(&self) -> std::sync::MutexGuard<'_, InputHistory> {
+        // A poisoned lock only means another callback panicked mid-update; the
+        // counters are still usable.
+        self.history.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    pub fn status(&self, now: Micros) -> InputStatus {
+        let h = self.history();
+        let c = &self.counters;
+        let age_ms = h.last_arrival_us.map(|t| (now - t) as f64 / 1000.0);
+        let last_error_age_ms = h.last_error_us.map(|t| (now - t) as f64 / 1000.0);
+        let stale_after = self.config.stale_after_ms();
+        let rate_hz = match age_ms {
+            Some(a) if a <= stale_after => h.rate.rate_hz,
+            _ => 0.0,
+        };
+        let mut reasons = Vec::new();
+        let state = if !self.config.enabled {
+            HealthState::Disabled
+        } else if let Some(age) = age_ms {
+            if age > stale_after {
+                reasons.push(Reason {
+                    code: "stale",
+                    text: format!("no data for {:.0} ms (limit {stale_after:.0} ms)", age),
+                });
+                HealthState::Stale
+            } else {
+                // The meter needs a full window before its rate means anything.
+                if h.rate.rate_hz > 0.0 && rate_hz < LOW_RATE_FRACTION * self.config.rate_hz {
+                    reasons.push(Reason {
+                        code: "low_rate",
+                        text: format!(
+                            "rate {rate_hz:.1} Hz, expected {:.1} Hz",
+                            self.config.rate_hz
+                        ),
+                    });
+                }
+                if let (Some(a), Some(e)) = (last_error_age_ms, &h.last_error) {
+                    if a < RECENT_ERROR_MS {
+                        reasons.push(Reason {
+                            code: "rejecting",
+                            text: format!("rejected input {a:.0} ms ago: {e}"),
+                        });
+                    }
+                }
+                if reasons.is_empty() {
+                    HealthState::Ok
+                } else {
+                    HealthState::Degraded
+                }
+            }
+        } else {
+            reasons.push(Reason {
+                code: "no_data",
+                text: "no valid sample received yet".into(),
+            });
+            if let Some(e) = &h.last_error {
+                reasons.push(Reason {
+                    code: "rejecting",
+                    text: format!("last rejection: {e}"),
+                });
+            }
+            HealthState::NoData
+        };
+        InputStatus {
+            id: self.config.id.clone(),
+            kind: self.config.kind,
+            key: self.config.key.clone(),
+            format: self.config.format,
+            ros_type: self.config.ros_type.map(|t| t.ros2_name().to_string()),
+            enabled: self.config.enabled,
+            received: c.received.load(Relaxed),
+            accepted: c.accepted.load(Relaxed),
+            rejected: c.rejected.load(Relaxed),
+            ignored: c.ignored.load(Relaxed),
+            dropped: c.dropped.load(Relaxed),
+            last_error: h.last_error.clone(),
+            last_error_age_ms,
+            rate_hz,
+            expected_rate_hz: self.config.rate_hz,
+            age_ms,
+            health: IngestHealth { state, reasons },
+        }
+    }
+
+    fn reject(&self, why: Rejection, now: Micros) {
+        self.counters.rejected.fetch_add(1, Relaxed);
+        let text = why.to_string();
+        let mut h = self.history();
+        h.last_error_us = Some(now);
+        let due = h
+            .last_log_us
+            .is_none_or(|t| now - t >= (ERROR_LOG_INTERVAL_MS * 1000) as Micros);
+        if due {
+            tracing::warn!(
+                input = %self.id,
+                key = %self.config.key,
+                format = %self.config.format,
+                suppressed = h.suppressed_logs,
+                "rejected payload: {text}"
+            );
+            h.last_log_us = Some(now);
+            h.suppressed_logs = 0;
+        } else {
+            h.suppressed_logs += 1;
+        }
+        h.last_error = Some(text);
+    }
+}
+
+/// All inputs and the decoding of their payloads.
+#[derive(Debug)]
+pub struct Ingest {
+    pub inputs: Vec<Arc<InputState>>,
+    /// Our own MAVLink (system, component): skipped when it comes back.
+    own_mav: (u8, u8),
+}
+
+impl Ingest {
+    pub fn new(config: &Config) -> Self {
+        Self {
+            inputs: config
+                .inputs
+                .iter()
+                .cloned()
+                .map(|c| Arc::new(InputState::new(c)))
+                .collect(),
+            own_mav: (config.mavlink.system_id, config.mavlink.component_id),
+        }
+    }
+
+    pub fn statuses(&self, now: Micros) -> Vec<InputStatus> {
+        self.inputs.iter().map(|i| i.status(now)).collect()
+    }
+
+    /// Decode and validate one payload for `input`. Never panics, whatever the bytes;
+    /// every outcome is counted on the input.
+    pub fn accept(
+        &self,
+        input: &InputState,
+        key: &str,
+        payload: &[u8],
+        arrival_us: Micros,
+    ) -> Vec<Sample> {
+        let c = &input.counters;
+        c.received.fetch_add(1, Relaxed);
+        if input.config.format == Format::Ros1 {
+            if let Some(ty) = input.config.ros_type {
+                if let Err(why) = check_ros1_key(key, ty) {
+                    input.reject(Rejection::WrongType(why), arrival_us);
+                    return Vec::new();
+                }
+            }
+        }
+        let mut decoded: Vec<Decoded> = Vec::new();
+        let result = codec::decode(
+            input.config.format,
+            input.config.ros_type,
+            payload,
+            &mut decoded,
+        );
+        match result {
+            Err(e) => input.reject(Rejection::Decode(e), arrival_us),
+            // A valid message with nothing for us (a HEARTBEAT).
+            Ok(()) if decoded.is_empty() => {
+                c.ignored.fetch_add(1, Relaxed);
+            }
+            Ok(()) => {}
+        }
+        let mut out = Vec::with_capacity(decoded.len());
+        for d in decoded {
+            if d.mav_origin == Some(self.own_mav) || d.data.kind() != input.config.kind {
+                c.ignored.fetch_add(1, Relaxed);
+                continue;
+            }
+            {
+                let mut h = input.history();
+                if let (Some(prev), Some(now)) = (h.last_stamp_us, d.stamp_us) {
+                    if now < prev {
+                        drop(h);
+                        input.reject(
+                            Rejection::TimeBackwards {
+                                previous_us: prev,
+                                now_us: now,
+                            },
+                            arrival_us,
+                        );
+                        continue;
+                    }
+                }
+                if d.stamp_us.is_some() {
+                    h.last_stamp_us = d.stamp_us;
+                }
+                h.last_arrival_us = Some(arrival_us);
+                h.rate.tick(arrival_us);
+            }
+            c.accepted.fetch_add(1, Relaxed);
+            out.push(Sample {
+                source: input.id.clone(),
+                stamp_us: d.stamp_us,
+                arrival_us,
+                data: d.data,
+            });
+        }
+        out
+    }
+}
+
+/// zenoh-plugin-ros1 keys start with `<hex(datatype)>/<md5>/`: check them against the
+/// configured type so a mismatch is a clear error, not garbage decoded.
+fn check_ros1_key(key: &str, ty: RosType) -> Result<(), String> {
+    let mut chunks = key.split('/');
+    let (Some(hex_type), Some(md5)) = (chunks.next(), chunks.next()) else {
+        return Ok(());
+    };
+    let Some(announced) = hex_decode(hex_type) else {
+        return Err(format!(
+            "key {key:?} does not start with a hex-encoded ROS 1 type (zenoh-plugin-ros1 form)"
+        ));
+    };
+    if announced != ty.ros1_name() || md5 != ty.ros1_md5() {
+        return Err(format!(
+            "key announces ROS 1 type {announced} (md5 {md5}), input is configured as {} (md5 {})",
+            ty.ros1_name(),
+            ty.ros1_md5()
+        ));
+    }
+    Ok(())
+}
+
+fn hex_decode(s: &str) -> Option<String> {
+    if s.len() % 2 != 0 {
+        return None;
+    }
+    let bytes: Option<Vec<u8>> = (0..s.len())
+        .step_by(2)
+        .map(|i| s.get(i..i + 2).and_then(|h| u8::from_str_radix(h, 16).ok()))
+        .collect();
+    String::from_utf8(bytes?).ok()
+}
+
+/// Hex of a ROS 1 datatype as zenoh-plugin-ros1 writes it in keys.
+pub fn hex_encode(s: &str) -> String {
+    s.bytes().map(|b| format!("{b:02x}")).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ingest_with(toml: &str) -> Ingest {
+        let cfg = Config::from_toml_str(toml, "test").expect("config");
+        Ingest::new(&cfg)
+    }
+
+    const JSON_IMU: &str =
+        "[[inputs]]\nid=\"imu\"\nkind=\"imu\"\nkey=\"imu\"\nformat=\"json\"\nrate_hz=100\n";
+
+    fn imu_json(stamp: i64) -> String {
+        format!(r#"{{"kind":"imu","stamp_us":{stamp},"gyro":[0.1,0.2,0.3],"accel":[0,0,9.81]}}"#)
+    }
+
+    #[test]
+    fn good_bad_and_backwards_are_counted() {
+        let ing = ingest_with(JSON_IMU);
+        let input = ing.inputs[0].clone();
+        assert_eq!(
+            ing.accept(&input, "imu", imu_json(1000).as_bytes(), 10)
+                .len(),
+            1
+        );
+        assert!(ing.accept(&input, "imu", b"{not json", 20).is_empty());
+        assert!(ing
+            .accept(&input, "imu", imu_json(500).as_bytes(), 30)
+            .is_empty());
+        assert_eq!(
+            ing.accept(&input, "imu", imu_json(2000).as_bytes(), 40)
+                .len(),
+            1
+        );
+        let s = input.status(50);
+        assert_eq!((s.received, s.accepted, s.rejected), (4, 2, 2));
+        let err = s.last_error.expect("last error");
+        assert!(err.contains("backwards"), "{err}");
+        assert_eq!(s.health.state, HealthState::Degraded);
+        assert_eq!(s.health.reasons[0].code, "rejecting");
+    }
+
+    #[test]
+    fn other_kinds_are_ignored_not_rejected() {
+        let ing = ingest_with(JSON_IMU);
+        let input = ing.inputs[0].clone();
+        let range = br#"{"kind":"range","stamp_us":1,"distance_m":1.5}"#;
+        assert!(ing.accept(&input, "imu", range, 1).is_empty());
+        let s = input.status(2);
+        assert_eq!((s.received, s.rejected, s.ignored), (1, 0, 1));
+        assert_eq!(s.health.state, HealthState::NoData);
+    }
+
+    #[test]
+    fn staleness_follows_the_expected_rate() {
+        let ing = ingest_with(JSON_IMU);
+        let input = ing.inputs[0].clone();
+        ing.accept(&input, "imu", imu_json(1).as_bytes(), 1_000_000);
+        // 100 Hz → stale after max(50 ms, 250 ms) = 250 ms.
+        assert_eq!(input.status(1_200_000).health.state, HealthState::Ok);
+        let s = input.status(1_300_000);
+        assert_eq!(s.health.state, HealthState::Stale);
+        assert_eq!(s.rate_hz, 0.0);
+    }
+
+    #[test]
+    fn rate_meter_measures_arrivals() {
+        let ing = ingest_with(JSON_IMU);
+        let input = ing.inputs[0].clone();
+        for i in 0..=250 {
+            let t = 1_000_000 + i * 10_000; // 100 Hz for 2.5 s
+            ing.accept(&input, "imu", imu_json(t).as_bytes(), t);
+        }
+        let s = input.status(3_500_000);
+        assert!((s.rate_hz - 100.0).abs() < 1.5, "{}", s.rate_hz);
+        assert_eq!(s.health.state, HealthState::Ok);
+    }
+
+    #[test]
+    fn ros1_key_type_mismatch_is_rejected_with_both_names() {
+        let ing = ingest_with(
+            "[[inputs]]\nid=\"gps\"\nkind=\"gnss\"\nkey=\"gps/fix\"\nformat=\"ros1\"\ntype=\"sensor_msgs/NavSatFix\"\nrate_hz=10\n",
+        );
+        let input = ing.inputs[0].clone();
+        let key = format!(
+            "{}/{}/gps/fix",
+            hex_encode("sensor_msgs/Imu"),
+            RosType::Imu.ros1_md5()
+        );
+        assert!(ing.accept(&input, &key, &[0u8; 8], 1).is_empty());
+        let err = input.status(2).last_error.expect("error");
+        assert!(
+            err.contains("sensor_msgs/Imu") && err.contains("sensor_msgs/NavSatFix"),
+            "{err}"
+        );
+    }
+}

@@ -1,0 +1,119 @@
+//! Zenoh input adapter: one session, one subscriber per enabled input key expression.
+//! The callbacks decode on Zenoh's thread (decoding is cheap and pure) and hand the
+//! samples to the estimator task with `try_send`: a full queue drops and counts, it
+//! never blocks Zenoh.
+
+use super::{now_us, Ingest};
+use crate::config::{ZenohConfig, ZenohMode};
+use crate::sample::Sample;
+use std::sync::atomic::Ordering::Relaxed;
+use std::sync::Arc;
+use thiserror::Error;
+use tokio::sync::mpsc;
+
+#[derive(Debug, Error)]
+pub enum ZenohError {
+    #[error("zenoh config: {0}")]
+    Config(String),
+    #[error(
+        "cannot open zenoh session ({mode:?}, listen {listen:?}, connect {connect:?}): {message}"
+    )]
+    Open {
+        mode: ZenohMode,
+        listen: Vec<String>,
+        connect: Vec<String>,
+        message: String,
+    },
+    #[error("cannot subscribe input `{input}` to {key:?}: {message}")]
+    Subscribe {
+        input: String,
+        key: String,
+        message: String,
+    },
+}
+
+/// Build the Zenoh config from ours: mode, endpoints and scouting on top of an optional
+/// user-supplied Zenoh config file.
+pub fn zenoh_config(cfg: &ZenohConfig) -> Result<zenoh::Config, ZenohError> {
+    let err = |e: zenoh::Error| ZenohError::Config(e.to_string());
+    let mut z = match &cfg.config_file {
+        Some(p) => zenoh::Config::from_file(p)
+            .map_err(|e| ZenohError::Config(format!("cannot load {p}: {e}")))?,
+        None => zenoh::Config::default(),
+    };
+    let mode = match cfg.mode {
+        ZenohMode::Peer => "\"peer\"",
+        ZenohMode::Client => "\"client\"",
+    };
+    z.insert_json5("mode", mode).map_err(err)?;
+    let list = |v: &Vec<String>| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
+    if !cfg.listen.is_empty() {
+        z.insert_json5("listen/endpoints", &list(&cfg.listen))
+            .map_err(err)?;
+    }
+    if !cfg.connect.is_empty() {
+        z.insert_json5("connect/endpoints", &list(&cfg.connect))
+            .map_err(err)?;
+    }
+    z.insert_json5(
+        "scouting/multicast/enabled",
+        if cfg.multicast_scouting {
+            "true"
+        } else {
+            "false"
+        },
+    )
+    .map_err(err)?;
+    Ok(z)
+}
+
+pub async fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, ZenohError> {
+    let z = zenoh_config(cfg)?;
+    zenoh::open(z).await.map_err(|e| ZenohError::Open {
+        mode: cfg.mode,
+        listen: cfg.listen.clone(),
+        connect: cfg.connect.clone(),
+        message: e.to_string(),
+    })
+}
+
+/// Declare one subscriber per enabled input key expression.
+pub async fn subscribe_inputs(
+    session: &zenoh::Session,
+    ingest: Arc<Ingest>,
+    tx: mpsc::Sender<Sample>,
+) -> Result<Vec<zenoh::pubsub::Subscriber<()>>, ZenohError> {
+    let mut subs = Vec::new();
+    for (idx, input) in ingest.inputs.iter().enumerate() {
+        if !input.config.enabled {
+            continue;
+        }
+        for key in input.config.key_exprs() {
+            let ingest = ingest.clone();
+            let tx = tx.clone();
+            let sub = session
+                .declare_subscriber(key.as_str())
+                .callback(move |sample: zenoh::sample::Sample| {
+                    let Some(input) = ingest.inputs.get(idx) else {
+                        return;
+                    };
+                    let arrival = now_us();
+                    let payload = sample.payload().to_bytes();
+                    for s in ingest.accept(input, sample.key_expr().as_str(), &payload, arrival) {
+                        if tx.try_send(s).is_err() {
+                            input.counters.dropped.fetch_add(1, Relaxed);
+                        }
+                    }
+                })
+                .await
+                .map_err(|e| ZenohError::Subscribe {
+                    input: input.config.id.clone(),
+                    key: key.clone(),
+                    message: e.to_string(),
+                })?;
+            tracing::info!(input = %input.id, key = %key, format = %input.config.format, "subscribed");
+            subs.push(sub);
+        }
+    }
+    Ok(subs)
+}

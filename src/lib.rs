@@ -1,0 +1,28 @@
+//! skyfuse: sensor fusion for drones and robots.
+//!
+//! Samples arrive on Zenoh keys bridged from MAVLink and ROS; they are decoded into one
+//! sample model, fused, checked, and published again. Map of the crate, from the pure
+//! core outwards:
+//!
+//! - [`sample`]: the internal sample model (SI units, ENU/FLU, µs) every codec produces.
+//! - [`codec`]: pure functions between bytes and samples, one module per wire format
+//!   (ROS 2 CDR, ROS 1, mavlink-server JSON, raw MAVLink, skyfuse JSON).
+//! - [`geo`]: WGS-84 geodetic ↔ local ENU.
+//! - [`config`]: the one TOML config struct, its defaults and environment overrides.
+//! - [`ingest`]: payload → validated samples with per-input counters; [`ingest::zenoh_in`]
+//!   wires Zenoh subscribers to it.
+//! - [`sim`]: the built-in simulated vehicle (truth, sensor models, Zenoh publisher).
+//! - [`http`]: the JSON API and the page.
+//! - [`app`]: `run(config, listeners, shutdown)`, wiring it all together.
+//! - [`cli`]: the command line; `main.rs` only calls [`cli::main`].
+
+pub mod app;
+pub mod cli;
+pub mod codec;
+pub mod config;
+pub mod estimator;
+pub mod geo;
+pub mod http;
+pub mod ingest;
+pub mod sample;
+pub mod sim;

@@ -1,0 +1,309 @@
+//! The one internal sample model every codec produces and the estimator consumes.
+//!
+//! Conventions (fixed here so nothing downstream has to guess):
+//! - SI units: metres, seconds, radians, m/s, rad/s, m/s².
+//! - World frame: local ENU (REP-103). Body frame: FLU. Codecs of NED/FRD sources
+//!   (MAVLink) convert on the way in; ROS sources are taken as REP-103 already.
+//! - Time: microseconds. `stamp_us` is the sensor's own clock (ROS header stamp,
+//!   MAVLink `time_usec`/`time_boot_ms`), `arrival_us` the host clock when the bytes
+//!   arrived. The two are kept apart because sensors disagree about epochs.
+//! - Values a sensor marks as unknown (MAVLink NaN, ROS covariance type unknown) are
+//!   `None`, never a sentinel number.
+
+use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector2, Vector3};
+use serde::Serialize;
+use std::sync::Arc;
+
+/// Microseconds.
+pub type Micros = i64;
+
+/// A decoded sensor sample with its provenance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sample {
+    /// Config id of the input that produced it (e.g. `gps`, `t265`).
+    pub source: Arc<str>,
+    /// Sensor time in µs (the message's own stamp), if the message has one.
+    pub stamp_us: Option<Micros>,
+    /// Host time in µs at arrival.
+    pub arrival_us: Micros,
+    pub data: SensorData,
+}
+
+/// What a codec decodes from one message: the measurement and the message's stamp.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Decoded {
+    pub stamp_us: Option<Micros>,
+    /// MAVLink sender (system id, component id); `None` for ROS and JSON sources.
+    pub mav_origin: Option<(u8, u8)>,
+    pub data: SensorData,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+#[allow(clippy::large_enum_variant)] // samples are moved once, through a queue
+pub enum SensorData {
+    Imu(Imu),
+    Attitude(Attitude),
+    Gnss(GnssFix),
+    Flow(OpticalFlow),
+    Range(Range),
+    Odometry(Odometry),
+    /// The autopilot's own estimate (LOCAL_POSITION_NED, GLOBAL_POSITION_INT): shown
+    /// for comparison only, never fused (it would close a feedback loop through our VPE).
+    AutopilotEstimate(AutopilotEstimate),
+}
+
+/// The sensor kinds, as named in config and the status API.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SensorKind {
+    Imu,
+    Attitude,
+    Gnss,
+    Flow,
+    Range,
+    Odometry,
+    AutopilotEstimate,
+}
+
+impl SensorData {
+    pub fn kind(&self) -> SensorKind {
+        match self {
+            SensorData::Imu(_) => SensorKind::Imu,
+            SensorData::Attitude(_) => SensorKind::Attitude,
+            SensorData::Gnss(_) => SensorKind::Gnss,
+            SensorData::Flow(_) => SensorKind::Flow,
+            SensorData::Range(_) => SensorKind::Range,
+            SensorData::Odometry(_) => SensorKind::Odometry,
+            SensorData::AutopilotEstimate(_) => SensorKind::AutopilotEstimate,
+        }
+    }
+}
+
+impl SensorKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            SensorKind::Imu => "imu",
+            SensorKind::Attitude => "attitude",
+            SensorKind::Gnss => "gnss",
+            SensorKind::Flow => "flow",
+            SensorKind::Range => "range",
+            SensorKind::Odometry => "odometry",
+            SensorKind::AutopilotEstimate => "autopilot_estimate",
+        }
+    }
+}
+
+impl std::fmt::Display for SensorKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Inertial measurement, body FLU.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Imu {
+    /// Angular rate, rad/s.
+    pub gyro: Option<Vector3<f64>>,
+    /// Specific force, m/s² (reads about +9.81 on z when level and still).
+    pub accel: Option<Vector3<f64>>,
+    /// Orientation body FLU → world ENU, where the message carries one.
+    pub orientation: Option<UnitQuaternion<f64>>,
+    pub gyro_cov: Option<Matrix3<f64>>,
+    pub accel_cov: Option<Matrix3<f64>>,
+    pub orientation_cov: Option<Matrix3<f64>>,
+}
+
+/// Attitude from the autopilot: body FLU → world ENU.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Attitude {
+    pub orientation: UnitQuaternion<f64>,
+    /// Body rates, rad/s, FLU.
+    pub rates: Option<Vector3<f64>>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GnssFixType {
+    NoFix,
+    Fix2d,
+    Fix3d,
+    /// SBAS/DGPS/GBAS augmented fix.
+    Dgps,
+    RtkFloat,
+    RtkFixed,
+}
+
+/// A GNSS position fix, WGS-84.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GnssFix {
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    /// Altitude in metres (ellipsoid for NavSatFix, MSL for GPS_RAW_INT; used relatively).
+    pub alt_m: f64,
+    pub fix: GnssFixType,
+    /// Position covariance in ENU, m², if the message reports one.
+    pub position_cov: Option<Matrix3<f64>>,
+    pub satellites: Option<u8>,
+    pub hdop: Option<f64>,
+    pub vdop: Option<f64>,
+    /// Ground velocity in ENU, m/s, where the message has it.
+    pub velocity: Option<Vector3<f64>>,
+}
+
+/// Optical flow, optionally with the module's own ToF height.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OpticalFlow {
+    /// Angular flow rate about body x and y, rad/s, NOT rotation-compensated
+    /// (OPTICAL_FLOW_RAD integrated_x/y ÷ dt, OPTICAL_FLOW flow_rate_x/y, the seed's
+    /// flow_vel_x/y). Sign: PX4's convention, positive about +x when the scene moves +y.
+    pub rate: Option<Vector2<f64>>,
+    /// The flow sensor's own gyro over the same interval, rad/s, body FLU.
+    pub gyro: Option<Vector3<f64>>,
+    /// Metric ground velocity in body x/y, m/s, when the sensor already computed it
+    /// (OPTICAL_FLOW flow_comp_m_x/y).
+    pub velocity: Option<Vector2<f64>>,
+    /// Integration interval, s.
+    pub integration_s: Option<f64>,
+    /// 0 (bad) .. 255 (best).
+    pub quality: u8,
+    /// Sensor status byte, where sent (the seed's flow_status).
+    pub status: Option<u8>,
+    /// The module's own height reading, if it has one.
+    pub tof: Option<Tof>,
+}
+
+/// A time-of-flight height reading carried by a flow module (the seed's message).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Tof {
+    pub distance_m: f64,
+    pub strength: Option<u8>,
+    pub precision: Option<u8>,
+    pub status: Option<u8>,
+}
+
+/// A range finder reading (downward unless `orientation` says otherwise).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Range {
+    pub distance_m: f64,
+    pub min_m: Option<f64>,
+    pub max_m: Option<f64>,
+    /// Signal quality 0..100 where the sensor reports it (MAVLink convention).
+    pub signal_quality: Option<u8>,
+    /// Variance, m², where reported.
+    pub variance: Option<f64>,
+    /// MAVLink MAV_SENSOR_ORIENTATION (25 = PITCH_270 = downward); `None` for ROS.
+    pub orientation: Option<u8>,
+}
+
+/// A pose (and maybe twist) from visual odometry or another pose source, in the
+/// source's own world frame (ENU-like) with the body in FLU.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Odometry {
+    pub position: Vector3<f64>,
+    pub orientation: UnitQuaternion<f64>,
+    /// Linear velocity, m/s, in the child (body) frame as nav_msgs/Odometry defines it.
+    pub velocity: Option<Vector3<f64>>,
+    pub angular_velocity: Option<Vector3<f64>>,
+    /// 6×6 pose covariance (x, y, z, rot x, rot y, rot z).
+    pub pose_cov: Option<Matrix6<f64>>,
+    pub twist_cov: Option<Matrix6<f64>>,
+    pub frame_id: String,
+    pub child_frame_id: String,
+    /// Reset counter from the source (MAVLink ODOMETRY), if it has one.
+    pub reset_counter: Option<u8>,
+    /// Quality in percent (MAVLink ODOMETRY; -1 = failed), if reported.
+    pub quality: Option<i8>,
+}
+
+/// The autopilot's own position estimate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AutopilotEstimate {
+    /// Local ENU position, m (LOCAL_POSITION_NED converted).
+    pub local_position: Option<Vector3<f64>>,
+    /// Geodetic position (GLOBAL_POSITION_INT): lat, lon in degrees, alt in metres MSL.
+    pub geodetic: Option<(f64, f64, f64)>,
+    /// Velocity ENU, m/s.
+    pub velocity: Option<Vector3<f64>>,
+    /// Heading, rad, ENU yaw (0 = east, counter-clockwise), where given.
+    pub yaw: Option<f64>,
+}
+
+/// Frame conversion helpers used by codecs of NED/FRD sources.
+pub mod frames {
+    use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
+
+    /// NED vector → ENU vector.
+    pub fn ned_to_enu(v: Vector3<f64>) -> Vector3<f64> {
+        Vector3::new(v.y, v.x, -v.z)
+    }
+
+    /// FRD vector → FLU vector.
+    pub fn frd_to_flu(v: Vector3<f64>) -> Vector3<f64> {
+        Vector3::new(v.x, -v.y, -v.z)
+    }
+
+    /// A covariance in NED axes → ENU axes (the same permutation, applied on both sides).
+    pub fn ned_to_enu_cov(c: Matrix3<f64>) -> Matrix3<f64> {
+        let p = Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0);
+        p * c * p.transpose()
+    }
+
+    /// Attitude body FRD → world NED (MAVLink) to body FLU → world ENU (ROS).
+    pub fn q_ned_frd_to_enu_flu(q: UnitQuaternion<f64>) -> UnitQuaternion<f64> {
+        // q_enu_flu = q_enu_ned * q_ned_frd * q_frd_flu
+        let q_enu_ned = UnitQuaternion::from_quaternion(Quaternion::new(
+            0.0,
+            std::f64::consts::FRAC_1_SQRT_2,
+            std::f64::consts::FRAC_1_SQRT_2,
+            0.0,
+        ));
+        let q_frd_flu = UnitQuaternion::from_quaternion(Quaternion::new(0.0, 1.0, 0.0, 0.0));
+        q_enu_ned * q * q_frd_flu
+    }
+
+    /// Euler angles (roll, pitch, yaw; FRD in NED, as MAVLink ATTITUDE) → ENU/FLU quaternion.
+    pub fn euler_ned_to_enu_flu(roll: f64, pitch: f64, yaw: f64) -> UnitQuaternion<f64> {
+        q_ned_frd_to_enu_flu(UnitQuaternion::from_euler_angles(roll, pitch, yaw))
+    }
+
+    /// NED yaw (0 = north, clockwise) → ENU yaw (0 = east, counter-clockwise).
+    pub fn yaw_ned_to_enu(yaw: f64) -> f64 {
+        let y = std::f64::consts::FRAC_PI_2 - yaw;
+        (y + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI) - std::f64::consts::PI
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+
+        #[test]
+        fn level_north_facing_ned_is_yaw_90_in_enu() {
+            let q = euler_ned_to_enu_flu(0.0, 0.0, 0.0);
+            // Body x (forward) points north = ENU +y.
+            let fwd = q * Vector3::x();
+            assert!((fwd - Vector3::y()).norm() < 1e-12, "{fwd}");
+            // Body z (FLU up) points up.
+            let up = q * Vector3::z();
+            assert!((up - Vector3::z()).norm() < 1e-12, "{up}");
+            assert!((q.euler_angles().2 - yaw_ned_to_enu(0.0)).abs() < 1e-12);
+        }
+
+        #[test]
+        fn east_facing_with_roll_right() {
+            // Yaw 90° in NED = facing east; roll right 0.3 rad (right wing down).
+            let q = euler_ned_to_enu_flu(0.3, 0.0, std::f64::consts::FRAC_PI_2);
+            let fwd = q * Vector3::x();
+            assert!((fwd - Vector3::x()).norm() < 1e-12, "{fwd}");
+            // Body left (FLU +y) points north and slightly up when rolled right.
+            let left = q * Vector3::y();
+            assert!(left.y > 0.9 && left.z > 0.2, "{left}");
+        }
+
+        #[test]
+        fn covariance_permutation_swaps_north_and_east() {
+            let c = Matrix3::from_diagonal(&Vector3::new(1.0, 2.0, 3.0));
+            let e = ned_to_enu_cov(c);
+            assert_eq!(e, Matrix3::from_diagonal(&Vector3::new(2.0, 1.0, 3.0)));
+        }
+    }
+}

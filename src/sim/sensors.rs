@@ -1,0 +1,355 @@
+//! Sensor models over the ground truth: noise, biases, drift, delays and the quirks of
+//! each real sensor (T265 odometry in its own frame, flow that sees rotation, GPS with
+//! no fix indoors). Deterministic for a given seed.
+
+use super::truth::{truth, TruthState};
+use crate::geo::LocalEnu;
+use crate::sample::*;
+use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector2, Vector3};
+use rand::rngs::SmallRng;
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+
+/// Where the simulated flight takes place (PX4 SITL's default home, Zürich).
+pub const HOME_LAT: f64 = 47.397_742;
+pub const HOME_LON: f64 = 8.545_594;
+pub const HOME_ALT: f64 = 488.0;
+
+/// One simulated stream: which config input it feeds, how often, how late.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StreamSpec {
+    /// The config input id it is published for (default config names).
+    pub input_id: &'static str,
+    pub kind: SensorKind,
+    pub rate_hz: f64,
+    /// Transport + processing latency between measurement and publication, s.
+    pub delay_s: f64,
+}
+
+/// The demo's streams, matching `config/default.toml`'s enabled inputs.
+pub const DEMO_STREAMS: &[StreamSpec] = &[
+    StreamSpec {
+        input_id: "imu",
+        kind: SensorKind::Imu,
+        rate_hz: 200.0,
+        delay_s: 0.002,
+    },
+    StreamSpec {
+        input_id: "attitude",
+        kind: SensorKind::Attitude,
+        rate_hz: 50.0,
+        delay_s: 0.005,
+    },
+    StreamSpec {
+        input_id: "t265",
+        kind: SensorKind::Odometry,
+        rate_hz: 200.0,
+        delay_s: 0.006,
+    },
+    StreamSpec {
+        input_id: "flow",
+        kind: SensorKind::Flow,
+        rate_hz: 50.0,
+        delay_s: 0.01,
+    },
+    StreamSpec {
+        input_id: "rangefinder",
+        kind: SensorKind::Range,
+        rate_hz: 25.0,
+        delay_s: 0.01,
+    },
+    StreamSpec {
+        input_id: "gps",
+        kind: SensorKind::Gnss,
+        rate_hz: 10.0,
+        delay_s: 0.1,
+    },
+];
+
+// Noise and error magnitudes, typical of a hobby-grade IMU, a T265, a PMW3901-class
+// flow sensor with a VL53-class ToF, a u-blox M8 and a TFmini-class range finder.
+const GYRO_NOISE: f64 = 0.003;
+const ACCEL_NOISE: f64 = 0.04;
+const ORIENTATION_NOISE: f64 = 0.004;
+const T265_POS_NOISE: f64 = 0.003;
+/// T265 drift random walk, m/√s.
+const T265_DRIFT_RW: f64 = 0.004;
+const T265_POSE_VAR: f64 = 1e-4;
+const FLOW_RATE_NOISE: f64 = 0.02;
+const TOF_NOISE: f64 = 0.01;
+const TOF_MAX: f64 = 8.0;
+const RANGE_NOISE: f64 = 0.02;
+const RANGE_MIN: f64 = 0.2;
+const RANGE_MAX: f64 = 12.0;
+const GPS_H_NOISE: f64 = 0.35;
+const GPS_V_NOISE: f64 = 0.7;
+/// GPS slow error (multipath, atmosphere) random walk, m/√s.
+const GPS_BIAS_RW: f64 = 0.05;
+const GPS_H_VAR: f64 = 0.6;
+const GPS_V_VAR: f64 = 1.8;
+
+/// Stateful sensor models for one simulated vehicle.
+pub struct SensorModels {
+    rng: SmallRng,
+    pub origin: LocalEnu,
+    gyro_bias: Vector3<f64>,
+    accel_bias: Vector3<f64>,
+    t265_drift: Vector3<f64>,
+    t265_last_t: Option<f64>,
+    /// The T265 odometry frame is where the camera booted: the start pose.
+    t265_origin: (Vector3<f64>, UnitQuaternion<f64>),
+    gps_bias: Vector3<f64>,
+    gps_last_t: Option<f64>,
+    last_fix: (f64, f64, f64),
+}
+
+fn n(rng: &mut SmallRng, sigma: f64) -> f64 {
+    Normal::new(0.0, sigma)
+        .map(|d| d.sample(rng))
+        .unwrap_or(0.0)
+}
+
+fn n3(rng: &mut SmallRng, sigma: f64) -> Vector3<f64> {
+    Vector3::new(n(rng, sigma), n(rng, sigma), n(rng, sigma))
+}
+
+impl SensorModels {
+    pub fn new(seed: u64) -> Self {
+        let mut rng = SmallRng::seed_from_u64(seed);
+        let gyro_bias = n3(&mut rng, 0.003);
+        let accel_bias = n3(&mut rng, 0.05);
+        let start = truth(0.0);
+        Self {
+            rng,
+            origin: LocalEnu::new(HOME_LAT, HOME_LON, HOME_ALT),
+            gyro_bias,
+            accel_bias,
+            t265_drift: Vector3::zeros(),
+            t265_last_t: None,
+            t265_origin: (start.position, start.attitude),
+            gps_bias: Vector3::zeros(),
+            gps_last_t: None,
+            last_fix: (HOME_LAT, HOME_LON, HOME_ALT),
+        }
+    }
+
+    pub fn measure(&mut self, kind: SensorKind, s: &TruthState) -> SensorData {
+        match kind {
+            SensorKind::Imu => SensorData::Imu(self.imu(s)),
+            SensorKind::Attitude => SensorData::Attitude(self.attitude(s)),
+            SensorKind::Odometry => SensorData::Odometry(self.t265(s)),
+            SensorKind::Flow => SensorData::Flow(self.flow(s)),
+            SensorKind::Range => SensorData::Range(self.range(s)),
+            SensorKind::Gnss => SensorData::Gnss(self.gps(s)),
+            SensorKind::AutopilotEstimate => SensorData::AutopilotEstimate(AutopilotEstimate {
+                local_position: Some(s.position),
+                geodetic: None,
+                velocity: Some(s.velocity),
+                yaw: Some(s.attitude.euler_angles().2),
+            }),
+        }
+    }
+
+    fn noisy_attitude(&mut self, q: UnitQuaternion<f64>) -> UnitQuaternion<f64> {
+        q * UnitQuaternion::from_scaled_axis(n3(&mut self.rng, ORIENTATION_NOISE))
+    }
+
+    pub fn imu(&mut self, s: &TruthState) -> Imu {
+        let gyro = s.body_rate + self.gyro_bias + n3(&mut self.rng, GYRO_NOISE);
+        let accel = s.specific_force() + self.accel_bias + n3(&mut self.rng, ACCEL_NOISE);
+        Imu {
+            gyro: Some(gyro),
+            accel: Some(accel),
+            orientation: Some(self.noisy_attitude(s.attitude)),
+            gyro_cov: Some(Matrix3::identity() * GYRO_NOISE * GYRO_NOISE),
+            accel_cov: Some(Matrix3::identity() * ACCEL_NOISE * ACCEL_NOISE),
+            orientation_cov: Some(Matrix3::identity() * ORIENTATION_NOISE * ORIENTATION_NOISE),
+        }
+    }
+
+    pub fn attitude(&mut self, s: &TruthState) -> Attitude {
+        Attitude {
+            orientation: self.noisy_attitude(s.attitude),
+            rates: Some(s.body_rate + n3(&mut self.rng, GYRO_NOISE)),
+        }
+    }
+
+    pub fn t265(&mut self, s: &TruthState) -> Odometry {
+        if let Some(last) = self.t265_last_t {
+            let dt = (s.t - last).max(0.0);
+            self.t265_drift += n3(&mut self.rng, T265_DRIFT_RW * dt.sqrt());
+        }
+        self.t265_last_t = Some(s.t);
+        let (p0, q0) = self.t265_origin;
+        let position =
+            q0.inverse() * (s.position - p0) + self.t265_drift + n3(&mut self.rng, T265_POS_NOISE);
+        let mut pose_cov = Matrix6::zeros();
+        for i in 0..6 {
+            pose_cov[(i, i)] = T265_POSE_VAR;
+        }
+        Odometry {
+            position,
+            orientation: self.noisy_attitude(q0.inverse() * s.attitude),
+            velocity: Some(s.body_velocity() + n3(&mut self.rng, 0.01)),
+            angular_velocity: Some(s.body_rate + n3(&mut self.rng, GYRO_NOISE)),
+            pose_cov: Some(pose_cov),
+            twist_cov: Some(pose_cov),
+            frame_id: "camera_odom_frame".into(),
+            child_frame_id: "camera_pose_frame".into(),
+            reset_counter: None,
+            quality: None,
+        }
+    }
+
+    /// Distance from the sensor to the ground along the body's down axis.
+    fn slant_range(s: &TruthState) -> f64 {
+        let cos_tilt = (s.attitude * Vector3::z()).z.max(0.2);
+        s.position.z.max(0.0) / cos_tilt
+    }
+
+    pub fn flow(&mut self, s: &TruthState) -> OpticalFlow {
+        // A downward camera at slant range d sees rotation (the body rate) plus
+        // translation v/d; in FLU: rate = ω_xy + (v_y, -v_x)/d.
+        let d = Self::slant_range(s).max(0.05);
+        let v = s.body_velocity();
+        let rate = Vector2::new(s.body_rate.x + v.y / d, s.body_rate.y - v.x / d)
+            + Vector2::new(
+                n(&mut self.rng, FLOW_RATE_NOISE),
+                n(&mut self.rng, FLOW_RATE_NOISE),
+            );
+        // On the ground the lens is too close to focus: quality collapses.
+        let quality = if s.position.z < 0.08 {
+            20
+        } else {
+            (200.0 + n(&mut self.rng, 15.0)).clamp(120.0, 255.0) as u8
+        };
+        let tof = (Self::slant_range(s) + 0.02 + n(&mut self.rng, TOF_NOISE)).clamp(0.0, TOF_MAX);
+        OpticalFlow {
+            rate: Some(rate),
+            gyro: None,
+            velocity: None,
+            integration_s: Some(0.02),
+            quality,
+            status: Some(if quality >= 50 { 1 } else { 0 }),
+            tof: Some(Tof {
+                distance_m: tof,
+                strength: Some(200),
+                precision: Some(5),
+                status: Some(0),
+            }),
+        }
+    }
+
+    pub fn range(&mut self, s: &TruthState) -> Range {
+        let d = (Self::slant_range(s) + n(&mut self.rng, RANGE_NOISE)).clamp(RANGE_MIN, RANGE_MAX);
+        // MAVLink carries centimetres: quantise as the wire does.
+        Range {
+            distance_m: (d * 100.0).round() / 100.0,
+            min_m: Some(RANGE_MIN),
+            max_m: Some(RANGE_MAX),
+            signal_quality: Some(90),
+            variance: None,
+            orientation: Some(25),
+        }
+    }
+
+    pub fn gps(&mut self, s: &TruthState) -> GnssFix {
+        if let Some(last) = self.gps_last_t {
+            let dt = (s.t - last).max(0.0);
+            self.gps_bias += n3(&mut self.rng, GPS_BIAS_RW * dt.sqrt());
+            // Keep the slow error bounded, as real multipath is.
+            self.gps_bias *= 0.995;
+        }
+        self.gps_last_t = Some(s.t);
+        let cov = Matrix3::from_diagonal(&Vector3::new(GPS_H_VAR, GPS_H_VAR, GPS_V_VAR));
+        if s.indoor {
+            let (lat, lon, alt) = self.last_fix;
+            return GnssFix {
+                lat_deg: lat,
+                lon_deg: lon,
+                alt_m: alt,
+                fix: GnssFixType::NoFix,
+                position_cov: Some(cov * 1e4),
+                satellites: Some(2),
+                hdop: Some(99.0),
+                vdop: Some(99.0),
+                velocity: None,
+            };
+        }
+        let noise = Vector3::new(
+            n(&mut self.rng, GPS_H_NOISE),
+            n(&mut self.rng, GPS_H_NOISE),
+            n(&mut self.rng, GPS_V_NOISE),
+        );
+        let (lat, lon, alt) = self.origin.to_geodetic(s.position + self.gps_bias + noise);
+        self.last_fix = (lat, lon, alt);
+        GnssFix {
+            lat_deg: lat,
+            lon_deg: lon,
+            alt_m: alt,
+            fix: GnssFixType::Fix3d,
+            position_cov: Some(cov),
+            satellites: Some(14),
+            hdop: Some(0.8),
+            vdop: Some(1.2),
+            velocity: Some(s.velocity + n3(&mut self.rng, 0.05)),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn same_seed_same_measurements() {
+        let s = truth(30.0);
+        let mut a = SensorModels::new(7);
+        let mut b = SensorModels::new(7);
+        for k in [
+            SensorKind::Imu,
+            SensorKind::Gnss,
+            SensorKind::Flow,
+            SensorKind::Odometry,
+        ] {
+            assert_eq!(a.measure(k, &s), b.measure(k, &s));
+        }
+        let mut c = SensorModels::new(8);
+        assert_ne!(
+            a.measure(SensorKind::Imu, &s),
+            c.measure(SensorKind::Imu, &s)
+        );
+    }
+
+    #[test]
+    fn flow_minus_gyro_scaled_by_height_is_the_velocity() {
+        let mut m = SensorModels::new(1);
+        let mut err = Vector2::zeros();
+        let mut count = 0.0;
+        for i in 0..200 {
+            let s = truth(30.0 + i as f64 * 0.05);
+            let f = m.flow(&s);
+            let (Some(rate), Some(tof)) = (f.rate, f.tof) else {
+                panic!("flow without rate or tof")
+            };
+            let d = tof.distance_m - 0.02;
+            let comp = rate - s.body_rate.xy();
+            let v = Vector2::new(-comp.y * d, comp.x * d);
+            err += v - s.body_velocity().xy();
+            count += 1.0;
+        }
+        let mean = err / count;
+        assert!(mean.norm() < 0.02, "mean velocity error {mean}");
+    }
+
+    #[test]
+    fn gps_is_near_truth_outdoors_and_no_fix_indoors() {
+        let mut m = SensorModels::new(3);
+        let s = truth(40.0);
+        let g = m.gps(&s);
+        let enu = m.origin.to_enu(g.lat_deg, g.lon_deg, g.alt_m);
+        assert!((enu - s.position).norm() < 4.0, "{enu} vs {}", s.position);
+        assert_eq!(g.fix, GnssFixType::Fix3d);
+        assert_eq!(m.gps(&truth(80.0)).fix, GnssFixType::NoFix);
+    }
+}

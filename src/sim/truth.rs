@@ -1,0 +1,163 @@
+//! Ground-truth flight: take-off, figure-eight outdoors, an indoor stretch without GPS,
+//! figure-eight again, landing, then on the ground until the loop repeats. Smooth in
+//! position (C²), so the IMU the sensor models derive from it is consistent.
+
+use nalgebra::{UnitQuaternion, Vector3};
+use std::f64::consts::PI;
+
+pub const GRAVITY: f64 = 9.806_65;
+
+/// Phase boundaries of one loop of the demo flight, seconds.
+pub const T_TAKEOFF: f64 = 4.0;
+pub const T_CRUISE: f64 = 10.0;
+pub const T_INDOOR: f64 = 70.0;
+pub const T_OUTDOOR_AGAIN: f64 = 100.0;
+pub const T_LANDING: f64 = 130.0;
+pub const T_LANDED: f64 = 136.0;
+/// One loop, seconds; the demo repeats it.
+pub const LOOP_S: f64 = 140.0;
+pub const CRUISE_HEIGHT: f64 = 2.0;
+const EIGHT_A: f64 = 6.0;
+const EIGHT_PERIOD: f64 = 30.0;
+
+/// The vehicle's true state at one instant (world ENU, body FLU).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TruthState {
+    pub t: f64,
+    pub position: Vector3<f64>,
+    pub velocity: Vector3<f64>,
+    pub acceleration: Vector3<f64>,
+    /// Body FLU → world ENU.
+    pub attitude: UnitQuaternion<f64>,
+    /// Body angular rate, FLU, rad/s.
+    pub body_rate: Vector3<f64>,
+    /// True when the vehicle is in the indoor stretch (no GPS).
+    pub indoor: bool,
+}
+
+/// Smooth step 0→1 over [0,1] with zero first and second derivatives at both ends.
+fn smoothstep5(x: f64) -> f64 {
+    let x = x.clamp(0.0, 1.0);
+    x * x * x * (10.0 - 15.0 * x + 6.0 * x * x)
+}
+
+/// Horizontal figure-eight amplitude envelope: ramps in after take-off, out before landing.
+fn envelope(t: f64) -> f64 {
+    let ramp = 6.0;
+    smoothstep5((t - T_CRUISE) / ramp) * (1.0 - smoothstep5((t - (T_LANDING - ramp)) / ramp))
+}
+
+fn position_at(t_loop: f64) -> Vector3<f64> {
+    let t = t_loop;
+    let z = CRUISE_HEIGHT
+        * smoothstep5((t - T_TAKEOFF) / (T_CRUISE - T_TAKEOFF))
+        * (1.0 - smoothstep5((t - T_LANDING) / (T_LANDED - T_LANDING)));
+    let w = 2.0 * PI / EIGHT_PERIOD;
+    let tau = (t - T_CRUISE).max(0.0);
+    let e = envelope(t);
+    Vector3::new(
+        e * EIGHT_A * (w * tau).sin(),
+        e * EIGHT_A * 0.5 * (2.0 * w * tau).sin(),
+        z,
+    )
+}
+
+fn yaw_at(t: f64) -> f64 {
+    0.4 + 0.5 * (2.0 * PI * t / 45.0).sin() * envelope(t)
+}
+
+fn attitude_from(acc: Vector3<f64>, yaw: f64) -> UnitQuaternion<f64> {
+    // A multirotor tilts its thrust axis (body z) along the required specific force.
+    let thrust = acc + Vector3::new(0.0, 0.0, GRAVITY);
+    let q_yaw = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
+    let q_tilt = UnitQuaternion::rotation_between(&Vector3::z(), &thrust)
+        .unwrap_or_else(UnitQuaternion::identity);
+    q_tilt * q_yaw
+}
+
+/// Truth at time `t` seconds since the start of the flight (loops every [`LOOP_S`]).
+pub fn truth(t: f64) -> TruthState {
+    let tl = t.rem_euclid(LOOP_S);
+    let h = 1e-3;
+    let p0 = position_at(tl - h);
+    let p1 = position_at(tl);
+    let p2 = position_at(tl + h);
+    let velocity = (p2 - p0) / (2.0 * h);
+    let acceleration = (p2 - 2.0 * p1 + p0) / (h * h);
+    let att = |tt: f64| {
+        let a = (position_at(tt + h) - 2.0 * position_at(tt) + position_at(tt - h)) / (h * h);
+        attitude_from(a, yaw_at(tt))
+    };
+    let attitude = att(tl);
+    let q_next = att(tl + h);
+    let q_prev = att(tl - h);
+    // Body rate from the attitude's derivative: q⁻¹·q(t+h) over 2h, centred.
+    let body_rate = (q_prev.inverse() * q_next).scaled_axis() / (2.0 * h);
+    TruthState {
+        t,
+        position: p1,
+        velocity,
+        acceleration,
+        attitude,
+        body_rate,
+        indoor: (T_INDOOR..T_OUTDOOR_AGAIN).contains(&tl),
+    }
+}
+
+impl TruthState {
+    /// What an ideal accelerometer reads: specific force in body FLU.
+    pub fn specific_force(&self) -> Vector3<f64> {
+        self.attitude.inverse() * (self.acceleration + Vector3::new(0.0, 0.0, GRAVITY))
+    }
+
+    /// Velocity in body FLU.
+    pub fn body_velocity(&self) -> Vector3<f64> {
+        self.attitude.inverse() * self.velocity
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn on_ground_level_and_still_at_start() {
+        let s = truth(1.0);
+        assert!(s.position.norm() < 1e-9);
+        assert!((s.specific_force() - Vector3::new(0.0, 0.0, GRAVITY)).norm() < 1e-6);
+    }
+
+    #[test]
+    fn cruise_height_and_motion() {
+        let s = truth(40.0);
+        assert!((s.position.z - CRUISE_HEIGHT).abs() < 1e-6);
+        assert!(s.velocity.norm() > 0.3, "moving: {}", s.velocity);
+        assert!(truth(80.0).indoor && !truth(40.0).indoor);
+        // Back on the ground at the end of a loop.
+        assert!(truth(LOOP_S - 1.0).position.norm() < 1e-6);
+    }
+
+    #[test]
+    fn body_rate_integrates_to_the_attitude() {
+        // Integrating the body rate reproduces the attitude change: checks the sign
+        // convention the IMU model relies on.
+        let (t0, t1, dt) = (20.0, 22.0, 1e-3);
+        let mut q = truth(t0).attitude;
+        let mut t = t0;
+        while t < t1 - 1e-9 {
+            let w = truth(t + dt / 2.0).body_rate;
+            q *= UnitQuaternion::from_scaled_axis(w * dt);
+            t += dt;
+        }
+        let err = (q.inverse() * truth(t1).attitude).angle();
+        assert!(err < 1e-4, "attitude error {err}");
+    }
+
+    #[test]
+    fn tilt_follows_acceleration() {
+        let s = truth(25.0);
+        let f = s.attitude * s.specific_force();
+        let thrust_dir = s.attitude * Vector3::z();
+        assert!((f.normalize() - thrust_dir).norm() < 1e-6);
+    }
+}

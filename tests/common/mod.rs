@@ -1,0 +1,218 @@
+//! Shared helpers of the end-to-end tests: free ports, the service as a child
+//! process, a minimal HTTP GET, and the Python peers (eclipse-zenoh, rosbags,
+//! pymavlink) from the venv `tests/run` prepares.
+#![allow(dead_code)]
+
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+pub fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("free port")
+}
+
+pub fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The Python with the test peers installed: $SKYFUSE_PYTHON, else the venv that
+/// `tests/run` makes, else python3.
+pub fn python() -> PathBuf {
+    if let Some(p) = std::env::var_os("SKYFUSE_PYTHON") {
+        return PathBuf::from(p);
+    }
+    if let Some(home) = std::env::var_os("HOME") {
+        let venv = Path::new(&home).join(".cache/skyfuse-venv/bin/python");
+        if venv.exists() {
+            return venv;
+        }
+    }
+    PathBuf::from("python3")
+}
+
+/// Run a Python script from tests/py with arguments; returns stdout, panics with
+/// stderr on failure.
+pub fn run_py(script: &str, args: &[&str]) -> String {
+    let out = Command::new(python())
+        .arg(repo_root().join("tests/py").join(script))
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", python().display()));
+    assert!(
+        out.status.success(),
+        "{script} {args:?} failed ({}):\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The service binary as a child process, killed on drop.
+pub struct Service {
+    pub child: Child,
+    pub http_port: u16,
+    pub zenoh_port: u16,
+    pub log: PathBuf,
+}
+
+impl Service {
+    /// Start `skyfuse <args>` with Zenoh on a free loopback port (no multicast) and
+    /// HTTP on another; waits for /healthz.
+    pub fn start(args: &[&str], env: &[(&str, &str)]) -> Service {
+        let http_port = free_port();
+        let zenoh_port = free_port();
+        let log = std::env::temp_dir().join(format!("skyfuse-test-{http_port}.log"));
+        let logf = std::fs::File::create(&log).expect("log file");
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_skyfuse"));
+        cmd.args(args)
+            .args([
+                "--listen",
+                &format!("tcp/127.0.0.1:{zenoh_port}"),
+                "--no-multicast",
+                "--http",
+                &format!("127.0.0.1:{http_port}"),
+            ])
+            .env("RUST_LOG", "info,zenoh=warn")
+            .stdin(Stdio::null())
+            .stdout(logf.try_clone().expect("log"))
+            .stderr(logf);
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        let child = cmd.spawn().expect("spawn skyfuse");
+        let mut s = Service {
+            child,
+            http_port,
+            zenoh_port,
+            log,
+        };
+        s.wait_healthy(Duration::from_secs(30));
+        s
+    }
+
+    pub fn zenoh_endpoint(&self) -> String {
+        format!("tcp/127.0.0.1:{}", self.zenoh_port)
+    }
+
+    pub fn log_text(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    fn wait_healthy(&mut self, timeout: Duration) {
+        let start = Instant::now();
+        while start.elapsed() < timeout {
+            if let Ok(Some(status)) = self.child.try_wait() {
+                panic!("skyfuse exited with {status}:\n{}", self.log_text());
+            }
+            if let Ok((200, _)) = http_get(self.http_port, "/healthz") {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        panic!(
+            "skyfuse not healthy after {timeout:?}:\n{}",
+            self.log_text()
+        );
+    }
+
+    pub fn get_json(&self, path: &str) -> serde_json::Value {
+        let (code, body) = http_get(self.http_port, path).expect("GET");
+        assert_eq!(code, 200, "GET {path}: {body}");
+        serde_json::from_str(&body).unwrap_or_else(|e| panic!("GET {path}: {e}: {body}"))
+    }
+
+    /// Poll /api/v1/status until `done` holds or the timeout passes; returns the last status.
+    pub fn wait_status(
+        &self,
+        timeout: Duration,
+        done: impl Fn(&serde_json::Value) -> bool,
+    ) -> serde_json::Value {
+        let start = Instant::now();
+        loop {
+            let s = self.get_json("/api/v1/status");
+            if done(&s) || start.elapsed() > timeout {
+                return s;
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+
+    /// SIGTERM, then wait; returns the exit status and how long it took.
+    pub fn terminate(&mut self) -> (std::process::ExitStatus, Duration) {
+        let start = Instant::now();
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status();
+        loop {
+            if let Ok(Some(st)) = self.child.try_wait() {
+                return (st, start.elapsed());
+            }
+            if start.elapsed() > Duration::from_secs(10) {
+                let _ = self.child.kill();
+                panic!("skyfuse did not exit within 10 s of SIGTERM");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Minimal HTTP/1.1 GET on loopback: (status code, body).
+pub fn http_get(port: u16, path: &str) -> std::io::Result<(u16, String)> {
+    let mut s = TcpStream::connect(("127.0.0.1", port))?;
+    s.set_read_timeout(Some(Duration::from_secs(5)))?;
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
+    )?;
+    let mut buf = Vec::new();
+    s.read_to_end(&mut buf)?;
+    let text = String::from_utf8_lossy(&buf).into_owned();
+    let code = text
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    let body = if head
+        .to_ascii_lowercase()
+        .contains("transfer-encoding: chunked")
+    {
+        dechunk(body)
+    } else {
+        body.to_string()
+    };
+    Ok((code, body))
+}
+
+fn dechunk(mut body: &str) -> String {
+    let mut out = String::new();
+    while let Some((size, rest)) = body.split_once("\r\n") {
+        let n = usize::from_str_radix(size.trim(), 16).unwrap_or(0);
+        if n == 0 || rest.len() < n {
+            break;
+        }
+        out.push_str(&rest[..n]);
+        body = rest[n..].trim_start_matches("\r\n");
+    }
+    out
+}
+
+/// Find a sensor's status object by id.
+pub fn sensor<'a>(status: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
+    status["sensors"]
+        .as_array()
+        .and_then(|a| a.iter().find(|s| s["id"] == id))
+        .unwrap_or_else(|| panic!("no sensor {id} in status: {status}"))
+}
