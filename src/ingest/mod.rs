@@ -404,7 +404,7 @@ fn check_ros1_key(key: &str, ty: RosType) -> Result<(), String> {
 }
 
 fn hex_decode(s: &str) -> Option<String> {
-    if s.len() % 2 != 0 {
+    if !s.len().is_multiple_of(2) {
         return None;
     }
     let bytes: Option<Vec<u8>> = (0..s.len())

@@ -91,8 +91,7 @@ pub async fn run_publisher(
     let epoch_us = crate::ingest::now_us();
     let mut seq: u8 = 0;
     tokio::pin!(shutdown);
-    loop {
-        let Some(ev) = sim.next() else { break };
+    for ev in sim.by_ref() {
         let Some(route) = routes.get(ev.stream).and_then(|r| r.as_ref()) else {
             continue;
         };
