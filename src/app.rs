@@ -1,16 +1,24 @@
 //! Wiring: [`run`] takes a validated config, already-bound listeners (so tests bind
-//! port 0) and a shutdown future, and runs ingest, the estimator task and HTTP until
-//! shutdown.
+//! port 0) and a shutdown future, and runs ingest, the estimator task ([`pipeline`]),
+//! the outputs and HTTP until shutdown.
+//!
+//! [`pipeline`]: crate::pipeline
 
 use crate::config::Config;
+use crate::http::hub::{FrameKind, Hub};
 use crate::ingest::{now_us, zenoh_in, Ingest};
+use crate::output::mavlink_out::{self, MavlinkStats};
+use crate::output::zenoh_out::{self, ZenohOutInputs, ZenohOutStats};
+use crate::pipeline::{self, CommandSender, PipelineShared, PoseReceiver};
 use crate::sample::{Micros, Sample};
+use crate::sim::faults::FaultSchedule;
 use serde_json::json;
 use std::future::Future;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
+use std::time::Duration;
 use thiserror::Error;
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
 /// Listeners and sessions opened by the caller.
 pub struct Listeners {
@@ -27,18 +35,25 @@ pub enum RunError {
     Http(std::io::Error),
 }
 
-/// What the estimator task has consumed.
-#[derive(Debug, Default)]
-pub struct CoreCounters {
-    pub consumed: AtomicU64,
-    pub last_sample_arrival_us: AtomicU64,
+/// Optional parts of a run.
+#[derive(Default)]
+pub struct RunOptions {
+    /// The demo's simulator faults, for the fault-injection control.
+    pub faults: Option<Arc<FaultSchedule>>,
 }
 
 /// State shared by the HTTP handlers.
 pub struct AppState {
     pub config: Arc<Config>,
     pub ingest: Arc<Ingest>,
-    pub core: Arc<CoreCounters>,
+    pub pipeline: Arc<PipelineShared>,
+    pub hub: Arc<Hub>,
+    pub commands: CommandSender,
+    pub pose: PoseReceiver,
+    pub faults: Option<Arc<FaultSchedule>>,
+    pub controls_refused: AtomicU64,
+    pub mavlink_stats: Arc<MavlinkStats>,
+    pub zenoh_out_stats: Arc<ZenohOutStats>,
     pub started_us: Micros,
     pub zenoh_zid: String,
     pub zenoh_locators: Vec<String>,
@@ -72,20 +87,102 @@ impl AppState {
             "ingest": {
                 "queue_capacity": queue_capacity,
                 "queue_len": queue_capacity - queue_free,
-                "consumed": self.core.consumed.load(Relaxed),
+                "consumed": self.pipeline.consumed.load(Relaxed),
             },
-            "sensors": self.ingest.statuses(now),
-            // Filled by the estimator and output stages.
-            "estimator": serde_json::Value::Null,
-            "outputs": [],
+            "sensors": self.sensors_json(now),
+            "estimator": self.pipeline.status_json(),
+            "outputs": [
+                self.mavlink_stats.status_json(now, self.config.mavlink.rate_hz),
+                self.zenoh_out_stats.status_json(&self.config.output, &self.config.output.prefix_for(&self.config.service.vehicle)),
+            ],
+            "websocket": self.hub.stats_json(),
+            "controls": {
+                "enabled": !self.config.http.token.is_empty(),
+                "refused": self.controls_refused.load(Relaxed),
+                "fault_injection": self.faults.is_some(),
+            },
+        })
+    }
+
+    /// Per-sensor ingest counters with the health verdict: `health` is the sensor's
+    /// state (`ok`, `degraded`, `failed`, `stale`, `no_data`, `disabled`), `reasons`
+    /// why; `ingest` keeps the transport-level view (arriving, decodable).
+    pub fn sensors_json(&self, now: Micros) -> Vec<serde_json::Value> {
+        let health = self.pipeline.health_json();
+        self.ingest
+            .statuses(now)
+            .into_iter()
+            .map(|st| {
+                let mut v = serde_json::to_value(&st).unwrap_or_default();
+                let h = &health[st.id.as_str()];
+                if let Some(obj) = v.as_object_mut() {
+                    let ingest = obj.remove("health").unwrap_or_default();
+                    // Before the first verdict (or for a disabled input) the transport view
+                    // is all there is.
+                    let (state, reasons) = if h.is_null() || !st.enabled {
+                        (ingest["state"].clone(), ingest["reasons"].clone())
+                    } else {
+                        (h["state"].clone(), h["reasons"].clone())
+                    };
+                    obj.insert("health".into(), state);
+                    obj.insert("reasons".into(), reasons);
+                    obj.insert("ingest".into(), ingest);
+                    for k in ["test_ratio", "used", "usable", "since_ms"] {
+                        obj.insert(k.into(), h[k].clone());
+                    }
+                    obj.insert("quality".into(), serde_json::Value::Null);
+                }
+                v
+            })
+            .collect()
+    }
+
+    /// An event from a control action, to the event log and the dashboard.
+    pub fn publish_control_event(&self, kind: &str, source: Option<&str>, message: &str) {
+        let t = now_us();
+        let event = json!({
+            "time_us": t,
+            "t": (t - self.started_us) as f64 / 1e6,
+            "kind": kind,
+            "source": source,
+            "message": message,
+            "data": null,
+        });
+        let _ = self.pipeline.events_tx.send(Arc::new(event.clone()));
+        self.hub.publish(
+            FrameKind::Event,
+            t,
+            json!({"type": "event", "event": event}),
+        );
+    }
+
+    /// Health as published on `<prefix>/health`: sensors and the estimator's verdict.
+    pub fn health_json(&self) -> serde_json::Value {
+        json!({
+            "time_us": now_us(),
+            "sensors": self.sensors_json(now_us()),
+            "estimator": self.pipeline.status_json(),
         })
     }
 }
+
+/// Publishes the status to websocket clients while the service runs.
+const STATUS_FRAME_INTERVAL: Duration = Duration::from_millis(500);
 
 /// Run the service until `shutdown` resolves.
 pub async fn run(
     config: Config,
     listeners: Listeners,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), RunError> {
+    run_with(config, listeners, RunOptions::default(), shutdown).await
+}
+
+/// [`run`] with optional parts.
+pub async fn run_with(
+    config: Config,
+    listeners: Listeners,
+    options: RunOptions,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), RunError> {
     let config = Arc::new(config);
@@ -95,19 +192,77 @@ pub async fn run(
     let zid = session.zid().to_string();
     let locators = config.zenoh.listen.clone();
     let subscribers = zenoh_in::subscribe_inputs(&session, ingest.clone(), tx.clone()).await?;
-    let core = Arc::new(CoreCounters::default());
+    let started_us = now_us();
+    let hub = Arc::new(Hub::default());
+    let shared = Arc::new(PipelineShared::new(hub.clone(), started_us));
+    let (pose_tx, pose_rx) = watch::channel(None);
+    let (debug_tx, debug_rx) = watch::channel(Arc::new(crate::estimator::DebugSeries::default()));
+    let (mavlink_stats, endpoints) = mavlink_out::build_stats(&config.mavlink);
+    let zenoh_out_stats = Arc::new(ZenohOutStats::default());
+    let (cmd_tx, cmd_rx) = mpsc::channel(16);
     let state = Arc::new(AppState {
         config: config.clone(),
         ingest: ingest.clone(),
-        core: core.clone(),
-        started_us: now_us(),
+        pipeline: shared.clone(),
+        hub: hub.clone(),
+        commands: cmd_tx,
+        pose: pose_rx.clone(),
+        faults: options.faults,
+        controls_refused: AtomicU64::new(0),
+        mavlink_stats: mavlink_stats.clone(),
+        zenoh_out_stats: zenoh_out_stats.clone(),
+        started_us,
         zenoh_zid: zid.clone(),
         zenoh_locators: locators.clone(),
         queue: tx.downgrade(),
         zenoh_closed: AtomicBool::new(false),
     });
     drop(tx);
-    let estimator = tokio::spawn(estimator_task(rx, core));
+    let pipeline_config = pipeline::PipelineConfig {
+        estimator: config.estimator.clone(),
+        health: config.health.clone(),
+        inputs: config
+            .inputs
+            .iter()
+            .map(|i| (i.id.clone(), i.kind, i.rate_hz, i.enabled))
+            .collect(),
+    };
+    let estimator = tokio::spawn(pipeline::run(
+        rx,
+        cmd_rx,
+        pipeline_config,
+        ingest.clone(),
+        shared.clone(),
+        pose_tx,
+        debug_tx,
+    ));
+    let mavlink = tokio::spawn(mavlink_out::run(
+        config.mavlink.clone(),
+        config.estimator.max_pos_std_m,
+        pose_rx.clone(),
+        mavlink_stats,
+        endpoints,
+        (config.mavlink.zenoh_raw || config.mavlink.zenoh_json).then(|| session.clone()),
+    ));
+    let health_state = Arc::downgrade(&state);
+    let zenoh_output = tokio::spawn(zenoh_out::run(
+        session.clone(),
+        config.output.clone(),
+        config.output.prefix_for(&config.service.vehicle),
+        ZenohOutInputs {
+            pose: pose_rx,
+            debug: debug_rx,
+            events: shared.events_tx.subscribe(),
+            health: Arc::new(move || {
+                health_state
+                    .upgrade()
+                    .map(|s| s.health_json())
+                    .unwrap_or(serde_json::Value::Null)
+            }),
+        },
+        zenoh_out_stats,
+    ));
+    let status_frames = tokio::spawn(status_frames(state.clone()));
 
     let http_addr = listeners.http.local_addr().map_err(RunError::Http)?;
     tracing::info!(
@@ -132,6 +287,10 @@ pub async fn run(
     }
     // The last sender was in the subscriber callbacks: the estimator task ends.
     let _ = estimator.await;
+    status_frames.abort();
+    // The pose channel closed with the estimator: the outputs end on their own.
+    let _ = mavlink.await;
+    zenoh_output.abort();
     state.zenoh_closed.store(true, Relaxed);
     if let Err(e) = session.close().await {
         tracing::warn!("closing zenoh session: {e}");
@@ -139,13 +298,18 @@ pub async fn run(
     Ok(())
 }
 
-/// Consumes samples. The estimator (its own issue) plugs in here; until then this
-/// counts what arrives so the queue is drained and its depth is observable.
-async fn estimator_task(mut rx: mpsc::Receiver<Sample>, core: Arc<CoreCounters>) {
-    while let Some(s) = rx.recv().await {
-        core.consumed.fetch_add(1, Relaxed);
-        core.last_sample_arrival_us
-            .store(s.arrival_us.max(0) as u64, Relaxed);
+/// The `status` frame for websocket clients, twice a second.
+async fn status_frames(state: Arc<AppState>) {
+    let mut every = tokio::time::interval(STATUS_FRAME_INTERVAL);
+    every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        every.tick().await;
+        let status = state.status_json();
+        state.hub.publish(
+            FrameKind::Status,
+            now_us(),
+            json!({ "type": "status", "status": status }),
+        );
     }
 }
 

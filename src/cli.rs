@@ -3,8 +3,11 @@
 
 use crate::app::{self, Listeners};
 use crate::config::{Config, ZenohMode};
+use crate::estimator::Mode;
 use crate::ingest::zenoh_in;
-use crate::sim::{publish, sensors::DEMO_STREAMS, Simulator};
+use crate::offline;
+use crate::sim::faults::FaultSchedule;
+use crate::sim::{publish, scenario, sensors::DEMO_STREAMS, Simulator};
 use clap::{Args, Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -44,18 +47,57 @@ pub enum Command {
     },
     /// Check a config file and print what it configures.
     CheckConfig { file: PathBuf },
-    /// Publish the simulator's sensor samples to Zenoh for another skyfuse instance.
+    /// Simulate a flight: publish its sensor samples to Zenoh for another skyfuse
+    /// instance, or with `--out` run it offline through the estimator and write TUM files.
     Sim {
-        /// Config whose inputs name the keys and formats to publish (default: built-in).
+        /// Config: its inputs name the keys and formats to publish, its `[estimator]`
+        /// table configures offline runs (default: built-in).
         #[arg(short, long)]
         config: Option<PathBuf>,
         #[command(flatten)]
         net: NetArgs,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Seconds of flight to publish (default: until stopped).
+        /// Seconds of flight (default: until stopped; offline: one 140 s loop).
         #[arg(long)]
         duration: Option<f64>,
+        /// Scenario (see `--list`), or `all` with `--out`.
+        #[arg(long, default_value = "demo")]
+        scenario: String,
+        /// Offline: write truth.tum, fused.tum, <sensor>.tum, events.jsonl and
+        /// summary.json here instead of publishing.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Offline: fusion mode (wrls, ekf, wrls+ekf, or all); default from the config.
+        #[arg(long)]
+        fusion: Option<String>,
+        /// List the scenarios and exit.
+        #[arg(long)]
+        list: bool,
+    },
+    /// Replay a recorded flight (a PX4 log exported to CSV by pyulog's ulog2csv)
+    /// through the estimator and write TUM files, events and an APE summary.
+    Replay {
+        /// Directory of `<topic>_<instance>.csv` files.
+        path: PathBuf,
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Only fuse these sources or kinds (e.g. `flow,range,attitude`); the others are
+        /// still written for comparison.
+        #[arg(long, value_delimiter = ',')]
+        sources: Option<Vec<String>>,
+        /// The source the others are scored against (APE, SE(3)-aligned).
+        #[arg(long, default_value = "vio")]
+        reference: String,
+        /// Score only this window of the log, seconds from its start: `START:END`.
+        #[arg(long, value_parser = parse_window)]
+        window: Option<(f64, f64)>,
+        /// Fusion mode (wrls, ekf, wrls+ekf); default from the config.
+        #[arg(long)]
+        fusion: Option<String>,
+        /// Config whose `[estimator]` table is used (default: built-in).
+        #[arg(short, long)]
+        config: Option<PathBuf>,
     },
 }
 
@@ -179,17 +221,66 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             seed,
             no_browser,
         } => demo(net, seed, no_browser).await,
+        Command::Sim { list: true, .. } => {
+            for (name, description) in scenario::NAMES {
+                println!("  {name:<16} {description}");
+            }
+            Ok(())
+        }
+        Command::Sim {
+            config,
+            seed,
+            duration,
+            scenario,
+            out: Some(out),
+            fusion,
+            ..
+        } => {
+            let c = Config::load(config.as_deref(), env_vars()).map_err(|e| e.to_string())?;
+            offline_sims(&c, &scenario, fusion.as_deref(), seed, duration, &out)
+        }
+        Command::Replay {
+            path,
+            out,
+            sources,
+            reference,
+            window,
+            fusion,
+            config,
+        } => {
+            let c = Config::load(config.as_deref(), env_vars()).map_err(|e| e.to_string())?;
+            replay(
+                &c,
+                &path,
+                &out,
+                sources.as_deref(),
+                &reference,
+                window,
+                fusion.as_deref(),
+            )
+        }
         Command::Sim {
             config,
             net,
             seed,
             duration,
+            scenario,
+            ..
         } => {
+            let scn = scenario::scenario(&scenario)
+                .ok_or_else(|| format!("unknown scenario {scenario:?} (see --list)"))?;
             let c = load(config.as_deref(), &net)?;
             let session = zenoh_in::open_session(&c.zenoh)
                 .await
                 .map_err(|e| e.to_string())?;
-            let sim = Simulator::new(DEMO_STREAMS, seed, duration.unwrap_or(f64::INFINITY));
+            let sensors = scn.streams.iter().map(|s| s.input_id.to_string()).collect();
+            let sim = Simulator::with_profile(
+                &scn.streams,
+                seed,
+                duration.unwrap_or(f64::INFINITY),
+                scn.profile,
+                Arc::new(FaultSchedule::new(sensors, scn.faults.clone())),
+            );
             let counters = Arc::new(publish::PublishCounters::default());
             let n = publish::run_publisher(
                 session.clone(),
@@ -262,8 +353,14 @@ async fn demo(net: NetArgs, seed: u64, no_browser: bool) -> Result<(), String> {
         .await
         .map_err(|e| format!("demo simulator: {e}"))?;
 
+    // Controls need a token; the demo makes one unless the environment set it.
+    let generated_token = c.http.token.is_empty();
+    if generated_token {
+        c.http.token = random_token();
+    }
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     let sim = Simulator::new(DEMO_STREAMS, seed, f64::INFINITY);
+    let faults = sim.faults();
     let counters = Arc::new(publish::PublishCounters::default());
     let mut sim_stop = stop_rx.clone();
     let sim_task = tokio::spawn(publish::run_publisher(
@@ -278,6 +375,12 @@ async fn demo(net: NetArgs, seed: u64, no_browser: bool) -> Result<(), String> {
 
     let url = format!("http://{http_addr}/");
     println!("skyfuse demo: dashboard at {url} (simulated vehicle on Zenoh {locators:?}); Ctrl-C to stop");
+    if generated_token {
+        println!(
+            "controls token (reset origin, calibration, fault injection): {}",
+            c.http.token
+        );
+    }
     if !no_browser {
         open_browser(&url);
     }
@@ -285,7 +388,10 @@ async fn demo(net: NetArgs, seed: u64, no_browser: bool) -> Result<(), String> {
         app::shutdown_signal().await;
         let _ = stop_tx.send(true);
     };
-    let result = app::run(c, Listeners { http, zenoh }, shutdown)
+    let options = app::RunOptions {
+        faults: Some(faults),
+    };
+    let result = app::run_with(c, Listeners { http, zenoh }, options, shutdown)
         .await
         .map_err(|e| e.to_string());
     let _ = sim_task.await;
@@ -313,4 +419,246 @@ fn open_browser(url: &str) {
     {
         tracing::info!("could not open a browser ({opener}: {e}); open {url} yourself");
     }
+}
+
+/// A 128-bit random token, hex.
+fn random_token() -> String {
+    use rand::RngCore;
+    let mut b = [0u8; 16];
+    rand::rngs::OsRng.fill_bytes(&mut b);
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+fn parse_window(s: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s
+        .split_once(':')
+        .ok_or_else(|| format!("window {s:?}: expected START:END in seconds"))?;
+    let a: f64 = a
+        .trim()
+        .parse()
+        .map_err(|_| format!("window start {a:?} is not a number"))?;
+    let b: f64 = b
+        .trim()
+        .parse()
+        .map_err(|_| format!("window end {b:?} is not a number"))?;
+    if !(a.is_finite() && b.is_finite() && b > a) {
+        return Err(format!("window {s:?}: END must be after START"));
+    }
+    Ok((a, b))
+}
+
+fn parse_fusion(s: &str) -> Result<Vec<Mode>, String> {
+    match s {
+        "all" => Ok(vec![Mode::Wrls, Mode::Ekf, Mode::WrlsEkf]),
+        "wrls" => Ok(vec![Mode::Wrls]),
+        "ekf" => Ok(vec![Mode::Ekf]),
+        "wrls+ekf" => Ok(vec![Mode::WrlsEkf]),
+        other => Err(format!(
+            "unknown fusion mode {other:?} (wrls, ekf, wrls+ekf or all)"
+        )),
+    }
+}
+
+/// A progress bar on stderr: redrawn in place on a terminal, every 10 % otherwise.
+pub struct Progress {
+    label: String,
+    tty: bool,
+    last_shown: i64,
+}
+
+impl Progress {
+    pub fn new(label: impl Into<String>) -> Self {
+        use std::io::IsTerminal;
+        Self {
+            label: label.into(),
+            tty: std::io::stderr().is_terminal(),
+            last_shown: -1,
+        }
+    }
+
+    pub fn update(&mut self, fraction: f64) {
+        let pct = (fraction.clamp(0.0, 1.0) * 100.0) as i64;
+        let step = if self.tty { 1 } else { 10 };
+        if pct / step == self.last_shown / step && pct != 100 || pct == self.last_shown {
+            return;
+        }
+        self.last_shown = pct;
+        let filled = (pct / 4) as usize;
+        let bar = format!("{}{}", "#".repeat(filled), "-".repeat(25 - filled));
+        if self.tty {
+            eprint!("\r{} [{bar}] {pct:>3}%", self.label);
+            if pct == 100 {
+                eprintln!();
+            }
+        } else {
+            eprintln!("{} [{bar}] {pct:>3}%", self.label);
+        }
+    }
+}
+
+fn fmt_rmse(v: Option<f64>) -> String {
+    v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "-".into())
+}
+
+/// `skyfuse sim --out`: one or all scenarios, one or all fusion modes.
+fn offline_sims(
+    c: &Config,
+    scenario_name: &str,
+    fusion: Option<&str>,
+    seed: u64,
+    duration: Option<f64>,
+    out: &std::path::Path,
+) -> Result<(), String> {
+    let names: Vec<&str> = if scenario_name == "all" {
+        scenario::NAMES.iter().map(|(n, _)| *n).collect()
+    } else {
+        vec![scenario_name]
+    };
+    let modes = match fusion {
+        Some(f) => parse_fusion(f)?,
+        None => vec![c.estimator.mode],
+    };
+    let many = names.len() > 1 || modes.len() > 1;
+    let duration = duration.unwrap_or(scenario::DEFAULT_DURATION_S);
+    // scenario -> (source scores from the first mode, fused score per mode)
+    let mut table: Vec<(String, Vec<(String, Option<f64>)>, Vec<Option<f64>>)> = Vec::new();
+    for name in &names {
+        let scn = scenario::scenario(name)
+            .ok_or_else(|| format!("unknown scenario {name:?} (see --list)"))?;
+        let mut sources = Vec::new();
+        let mut fused = Vec::new();
+        for m in &modes {
+            let mut cfg = c.estimator.clone();
+            cfg.mode = *m;
+            let dir = if many {
+                out.join(name).join(m.as_str())
+            } else {
+                out.to_path_buf()
+            };
+            let mut bar = Progress::new(format!("{name:<16} {:<8}", m.as_str()));
+            let summary = offline::run_scenario(
+                &scn,
+                seed,
+                duration,
+                cfg,
+                c.health.clone(),
+                &dir,
+                &mut |f| bar.update(f),
+            )
+            .map_err(|e| e.to_string())?;
+            if sources.is_empty() {
+                sources = summary
+                    .scores
+                    .iter()
+                    .filter(|s| s.name != "fused")
+                    .map(|s| (s.name.clone(), s.ape.as_ref().map(|a| a.rmse)))
+                    .collect();
+            }
+            let (f, best) = summary.fused_and_best_source();
+            tracing::info!(
+                scenario = name,
+                mode = m.as_str(),
+                fused_rmse_m = fmt_rmse(f),
+                best_source = best.as_ref().map(|b| format!("{} {:.3}", b.0, b.1)).unwrap_or_default(),
+                events = summary.events,
+                out = %dir.display(),
+                "offline run done"
+            );
+            fused.push(f);
+        }
+        table.push((name.to_string(), sources, fused));
+    }
+    let mut md = String::from(
+        "APE RMSE against truth, m (SE(3)-aligned as `evo_ape -a`); sources as the sensors report them\n\n| scenario | sources | ",
+    );
+    md += &modes
+        .iter()
+        .map(|m| m.as_str())
+        .collect::<Vec<_>>()
+        .join(" | ");
+    md += " |\n|---|---|";
+    md += &"---|".repeat(modes.len());
+    md += "\n";
+    for (name, sources, fused) in &table {
+        let src = sources
+            .iter()
+            .map(|(n, r)| format!("{n} {}", fmt_rmse(*r)))
+            .collect::<Vec<_>>()
+            .join(", ");
+        md += &format!(
+            "| {name} | {src} | {} |\n",
+            fused
+                .iter()
+                .map(|f| fmt_rmse(*f))
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+    }
+    print!("{md}");
+    if many {
+        std::fs::write(out.join("table.md"), &md)
+            .map_err(|e| format!("cannot write {}: {e}", out.join("table.md").display()))?;
+    }
+    Ok(())
+}
+
+/// `skyfuse replay`.
+fn replay(
+    c: &Config,
+    path: &std::path::Path,
+    out: &std::path::Path,
+    sources: Option<&[String]>,
+    reference: &str,
+    window: Option<(f64, f64)>,
+    fusion: Option<&str>,
+) -> Result<(), String> {
+    let mut cfg = c.estimator.clone();
+    if let Some(f) = fusion {
+        match parse_fusion(f)?.as_slice() {
+            [m] => cfg.mode = *m,
+            _ => return Err("replay takes one fusion mode".into()),
+        }
+    }
+    let mut bar = Progress::new("reading  ");
+    let log = crate::replay::px4csv::read_dir_with_progress(path, &mut |done, total| {
+        bar.update(done as f64 / total.max(1) as f64)
+    })
+    .map_err(|e| e.to_string())?;
+    for t in &log.topics {
+        match &t.first_error {
+            Some(e) => {
+                tracing::warn!(topic = %t.name, source = %t.source, rows = t.rows, skipped = t.skipped, "read; first problem: {e}")
+            }
+            None => tracing::info!(topic = %t.name, source = %t.source, rows = t.rows, "read"),
+        }
+    }
+    let mut bar = Progress::new("replaying");
+    let summary = offline::run_replay(
+        &path.display().to_string(),
+        &log.samples,
+        cfg,
+        c.health.clone(),
+        sources,
+        reference,
+        window,
+        out,
+        &mut |f| bar.update(f),
+    )
+    .map_err(|e| e.to_string())?;
+    println!(
+        "replayed {} samples ({}) -> {}",
+        summary.samples,
+        summary.mode,
+        out.display()
+    );
+    println!("APE RMSE against {} (SE(3)-aligned), m:", summary.reference);
+    for s in &summary.scores {
+        println!(
+            "  {:<12} {:>8}  ({} poses)",
+            s.name,
+            fmt_rmse(s.ape.as_ref().map(|a| a.rmse)),
+            s.poses
+        );
+    }
+    Ok(())
 }

@@ -62,6 +62,12 @@ pub struct Config {
     pub mavlink: MavlinkConfig,
     #[serde(default)]
     pub inputs: Vec<InputConfig>,
+    #[serde(default)]
+    pub estimator: crate::estimator::EstimatorConfig,
+    #[serde(default)]
+    pub output: OutputConfig,
+    #[serde(default)]
+    pub health: crate::health::HealthConfig,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -148,14 +154,96 @@ pub struct MavlinkConfig {
     /// Our MAVLink component id; MAVLink input from (system_id, component_id) is our
     /// own output coming back through a bridge and is skipped.
     pub component_id: u8,
+    /// Where VISION_POSITION_ESTIMATE goes: `udpout:HOST:PORT`, `udpin:HOST:PORT`,
+    /// `tcpout:HOST:PORT`, `serial:PATH:BAUD`.
+    pub endpoints: Vec<String>,
+    /// Output rate, Hz.
+    pub rate_hz: f64,
+    pub vision_position_estimate: bool,
+    pub vision_speed_estimate: bool,
+    pub odometry: bool,
+    pub heartbeat: bool,
+    /// Also publish raw frames on `mavlink_raw/in` (mavlink-server `zenohraw://`).
+    pub zenoh_raw: bool,
+    /// Also publish mavlink-server JSON on `mavlink/in` (mavlink-server `zenoh://`).
+    pub zenoh_json: bool,
+    /// An estimate older than this is not sent, ms.
+    pub max_age_ms: f64,
 }
+
+/// PX4 wants 30–50 Hz; ArduPilot at least 4 Hz.
+pub const DEFAULT_MAV_RATE_HZ: f64 = 30.0;
+/// PX4 rejects vision data older than 400 ms; stay well inside.
+pub const DEFAULT_MAV_MAX_AGE_MS: f64 = 250.0;
 
 impl Default for MavlinkConfig {
     fn default() -> Self {
         Self {
             system_id: DEFAULT_MAV_SYSTEM_ID,
             component_id: DEFAULT_MAV_COMPONENT_ID,
+            endpoints: Vec::new(),
+            rate_hz: DEFAULT_MAV_RATE_HZ,
+            vision_position_estimate: true,
+            vision_speed_estimate: false,
+            odometry: false,
+            heartbeat: true,
+            zenoh_raw: false,
+            zenoh_json: false,
+            max_age_ms: DEFAULT_MAV_MAX_AGE_MS,
         }
+    }
+}
+
+/// The `[output]` table: what goes to Zenoh.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputConfig {
+    /// Prefix of the JSON keys; `{vehicle}` is replaced by `service.vehicle`.
+    pub prefix: String,
+    /// Publish `<prefix>/pose`, `<prefix>/health`, `<prefix>/events` as JSON.
+    pub json: bool,
+    /// Publish ROS 2 CDR for zenoh-bridge-ros2dds.
+    pub ros2: bool,
+    /// geometry_msgs/PoseStamped of the fused pose.
+    pub ros2_pose_key: String,
+    /// The seed's debug series as geometry_msgs/PointStamped, each on its own key.
+    pub ros2_debug: bool,
+    /// Key prefix of the debug series (`data_fusion` gives `data_fusion/OF_sum`, ...).
+    pub ros2_debug_prefix: String,
+    /// frame_id in the ROS headers.
+    pub ros2_frame_id: String,
+    /// Largest pose rate on Zenoh, Hz.
+    pub pose_rate_hz: f64,
+}
+
+pub const DEFAULT_OUTPUT_PREFIX: &str = "skyfuse/{vehicle}";
+pub const DEFAULT_POSE_KEY: &str = "data_fusion/pose_msg";
+pub const DEFAULT_DEBUG_PREFIX: &str = "data_fusion";
+pub const DEFAULT_ROS_FRAME_ID: &str = "map";
+pub const DEFAULT_POSE_RATE_HZ: f64 = 50.0;
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        Self {
+            prefix: DEFAULT_OUTPUT_PREFIX.into(),
+            json: true,
+            ros2: true,
+            ros2_pose_key: DEFAULT_POSE_KEY.into(),
+            ros2_debug: true,
+            ros2_debug_prefix: DEFAULT_DEBUG_PREFIX.into(),
+            ros2_frame_id: DEFAULT_ROS_FRAME_ID.into(),
+            pose_rate_hz: DEFAULT_POSE_RATE_HZ,
+        }
+    }
+}
+
+impl OutputConfig {
+    /// The JSON key prefix with the vehicle name in place.
+    pub fn prefix_for(&self, vehicle: &str) -> String {
+        self.prefix
+            .replace("{vehicle}", vehicle)
+            .trim_end_matches('/')
+            .to_string()
     }
 }
 
@@ -314,6 +402,53 @@ impl Config {
                     "{name}: `rate_hz` = {} must be in (0, 10000]",
                     input.rate_hz
                 ));
+            }
+        }
+        self.estimator
+            .validate()
+            .map_err(|e| format!("estimator: {e}"))?;
+        self.health.validate()?;
+        for e in &self.mavlink.endpoints {
+            crate::output::mavlink_out::Endpoint::parse(e)
+                .map_err(|m| format!("mavlink.endpoints: {m}"))?;
+        }
+        if !(self.mavlink.rate_hz.is_finite()
+            && self.mavlink.rate_hz >= 1.0
+            && self.mavlink.rate_hz <= 200.0)
+        {
+            return Err(format!(
+                "mavlink.rate_hz = {} must be in [1, 200]",
+                self.mavlink.rate_hz
+            ));
+        }
+        if !(self.mavlink.max_age_ms.is_finite() && self.mavlink.max_age_ms > 0.0) {
+            return Err(format!(
+                "mavlink.max_age_ms = {} must be positive",
+                self.mavlink.max_age_ms
+            ));
+        }
+        if !(self.output.pose_rate_hz.is_finite() && self.output.pose_rate_hz > 0.0) {
+            return Err(format!(
+                "output.pose_rate_hz = {} must be positive",
+                self.output.pose_rate_hz
+            ));
+        }
+        for (name, key) in [
+            (
+                "output.prefix",
+                self.output.prefix_for(&self.service.vehicle) + "/pose",
+            ),
+            ("output.ros2_pose_key", self.output.ros2_pose_key.clone()),
+            (
+                "output.ros2_debug_prefix",
+                format!("{}/OF_sum", self.output.ros2_debug_prefix),
+            ),
+        ] {
+            if let Err(e) = zenoh::key_expr::KeyExpr::try_from(key.as_str()) {
+                return Err(format!("{name}: {key:?} is not a valid Zenoh key: {e}"));
+            }
+            if key.contains('*') || key.contains('$') {
+                return Err(format!("{name}: {key:?} must not contain wildcards"));
             }
         }
         if self.ingest.channel_capacity == 0 {

@@ -11,8 +11,17 @@
 //! - [`config`]: the one TOML config struct, its defaults and environment overrides.
 //! - [`ingest`]: payload → validated samples with per-input counters; [`ingest::zenoh_in`]
 //!   wires Zenoh subscribers to it.
-//! - [`sim`]: the built-in simulated vehicle (truth, sensor models, Zenoh publisher).
-//! - [`http`]: the JSON API and the page.
+//! - [`sim`]: the built-in simulated vehicle (truth, sensor models, faults, scenarios,
+//!   Zenoh publisher).
+//! - [`replay`]: recorded flights (PX4 logs exported to CSV) as samples.
+//! - [`eval`]: TUM trajectories and the APE metric as evo computes it.
+//! - [`offline`]: scenario and replay runs through the estimator, without network.
+//! - [`estimator`]: the pure, deterministic estimator (no clock, no I/O).
+//! - [`health`]: per-sensor health checks with hysteresis (pure, like the estimator).
+//! - [`fusion`]: the estimator under health supervision, shared by service and offline.
+//! - [`pipeline`]: the estimator task: samples in, pose/events/live series out.
+//! - [`output`]: the fused pose out: MAVLink (VISION_POSITION_ESTIMATE) and Zenoh.
+//! - [`http`]: the JSON API, the websocket hub and the page.
 //! - [`app`]: `run(config, listeners, shutdown)`, wiring it all together.
 //! - [`cli`]: the command line; `main.rs` only calls [`cli::main`].
 
@@ -21,8 +30,15 @@ pub mod cli;
 pub mod codec;
 pub mod config;
 pub mod estimator;
+pub mod eval;
+pub mod fusion;
 pub mod geo;
+pub mod health;
 pub mod http;
 pub mod ingest;
+pub mod offline;
+pub mod output;
+pub mod pipeline;
+pub mod replay;
 pub mod sample;
 pub mod sim;

@@ -79,6 +79,81 @@ impl SensorData {
     }
 }
 
+impl SensorData {
+    /// Every number finite and within physical bounds: the last check before fusion
+    /// (codecs check on decode; offline runs and the simulator's faults come here).
+    pub fn validate(&self) -> Result<(), String> {
+        fn f(name: &str, v: f64) -> Result<(), String> {
+            if v.is_finite() {
+                Ok(())
+            } else {
+                Err(format!("{name} is {v}"))
+            }
+        }
+        fn all<'a>(name: &str, it: impl IntoIterator<Item = &'a f64>) -> Result<(), String> {
+            it.into_iter().try_for_each(|v| f(name, *v))
+        }
+        match self {
+            SensorData::Imu(m) => {
+                all("gyro", m.gyro.iter().flat_map(|v| v.iter()))?;
+                all("accel", m.accel.iter().flat_map(|v| v.iter()))?;
+                all(
+                    "orientation",
+                    m.orientation.iter().flat_map(|q| q.coords.iter()),
+                )
+            }
+            SensorData::Attitude(m) => {
+                all("orientation", m.orientation.coords.iter())?;
+                all("rates", m.rates.iter().flat_map(|v| v.iter()))
+            }
+            SensorData::Gnss(m) => {
+                f("latitude", m.lat_deg)?;
+                f("longitude", m.lon_deg)?;
+                f("altitude", m.alt_m)?;
+                if m.lat_deg.abs() > 90.0 || m.lon_deg.abs() > 180.0 {
+                    return Err(format!(
+                        "position ({}, {}) is not on Earth",
+                        m.lat_deg, m.lon_deg
+                    ));
+                }
+                all(
+                    "position covariance",
+                    m.position_cov.iter().flat_map(|c| c.iter()),
+                )?;
+                all("velocity", m.velocity.iter().flat_map(|v| v.iter()))
+            }
+            SensorData::Flow(m) => {
+                all("flow rate", m.rate.iter().flat_map(|v| v.iter()))?;
+                all("flow gyro", m.gyro.iter().flat_map(|v| v.iter()))?;
+                all("flow velocity", m.velocity.iter().flat_map(|v| v.iter()))?;
+                if let Some(t) = &m.tof {
+                    f("tof distance", t.distance_m)?;
+                }
+                Ok(())
+            }
+            SensorData::Range(m) => {
+                f("range", m.distance_m)?;
+                if m.distance_m < 0.0 {
+                    return Err(format!("range {} m is negative", m.distance_m));
+                }
+                Ok(())
+            }
+            SensorData::Odometry(m) => {
+                all("odometry position", m.position.iter())?;
+                all("odometry orientation", m.orientation.coords.iter())?;
+                all(
+                    "odometry velocity",
+                    m.velocity.iter().flat_map(|v| v.iter()),
+                )
+            }
+            SensorData::AutopilotEstimate(m) => all(
+                "local position",
+                m.local_position.iter().flat_map(|v| v.iter()),
+            ),
+        }
+    }
+}
+
 impl SensorKind {
     pub fn as_str(self) -> &'static str {
         match self {
@@ -155,7 +230,10 @@ pub struct GnssFix {
 pub struct OpticalFlow {
     /// Angular flow rate about body x and y, rad/s, NOT rotation-compensated
     /// (OPTICAL_FLOW_RAD integrated_x/y ÷ dt, OPTICAL_FLOW flow_rate_x/y, the seed's
-    /// flow_vel_x/y). Sign: PX4's convention, positive about +x when the scene moves +y.
+    /// flow_vel_x/y). Axes body FLU, a right-handed rotation counts positive, so a
+    /// downward camera at height d sees rate = ω_xy + (v_y, −v_x)/d. PX4 sends FRD
+    /// axes: its y changes sign on the way in (checked on a real PX4 flight against
+    /// its visual odometry, `replay::px4csv`).
     pub rate: Option<Vector2<f64>>,
     /// The flow sensor's own gyro over the same interval, rad/s, body FLU.
     pub gyro: Option<Vector3<f64>>,

@@ -228,6 +228,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     };
     let c = fv.compensated;
     core.debug_point(t, "compensated_OF", source, Vector3::new(c.x, c.y, 0.0));
+    // The gyro as used by the compensation (low-passed, clamped): seed 001's plot set.
+    let g = fv.gyro;
+    core.debug_point(t, "flow_gyro", source, Vector3::new(g.x, g.y, 0.0));
     // Navigation frame by yaw, integrated (seed 001: sum_flow += speed · dt).
     let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_of(&core.att.q));
     let v_nav = yaw * Vector3::new(fv.vel_body.x, fv.vel_body.y, 0.0);

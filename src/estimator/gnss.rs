@@ -148,6 +148,19 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     }
 }
 
+/// A fix from a GNSS the health layer took out: only its innovation test, on a copy
+/// of the filter (see [`Core::probe_position`]).
+pub fn probe(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) {
+    let (Ok(cov), Some(origin)) = (checks(fix, ctx.cfg), core.gnss.origin) else {
+        return;
+    };
+    if core.ekf.is_none() || !core.mode_ekf_direct {
+        return;
+    }
+    let enu = origin.to_enu(fix.lat_deg, fix.lon_deg, fix.alt_m);
+    core.probe_position(t, source, "gnss", enu, &cov, ctx);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -378,25 +378,14 @@ impl Core {
         ok
     }
 
-    /// Fuse a world position (GNSS) or an odometry position (`block` = its offset).
-    #[allow(clippy::too_many_arguments)]
-    pub fn fuse_position(
-        &mut self,
-        t: i64,
-        source: &str,
+    /// The innovation of a position measurement: (y, H), or None without a filter.
+    fn position_innovation(
+        &self,
         kind: &'static str,
         z: Vector3<f64>,
-        r: &Matrix3<f64>,
         block: Option<&str>,
-        ctx: &Ctx,
-    ) -> bool {
-        if !self.mode_ekf_direct {
-            self.mark_aiding(t, source, kind);
-            return true;
-        }
-        let Some(ekf) = self.ekf.as_ref() else {
-            return false;
-        };
+    ) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+        let ekf = self.ekf.as_ref()?;
         let n = ekf.n();
         let mut h = ekf::h_pos(n);
         let mut pred = ekf.pos();
@@ -413,8 +402,57 @@ impl Core {
             }
         }
         let y = z - pred;
-        let y = DMatrix::from_column_slice(3, 1, y.as_slice());
+        Some((DMatrix::from_column_slice(3, 1, y.as_slice()), h))
+    }
+
+    /// Fuse a world position (GNSS) or an odometry position (`block` = its offset).
+    #[allow(clippy::too_many_arguments)]
+    pub fn fuse_position(
+        &mut self,
+        t: i64,
+        source: &str,
+        kind: &'static str,
+        z: Vector3<f64>,
+        r: &Matrix3<f64>,
+        block: Option<&str>,
+        ctx: &Ctx,
+    ) -> bool {
+        if !self.mode_ekf_direct {
+            self.mark_aiding(t, source, kind);
+            return true;
+        }
+        let Some((y, h)) = self.position_innovation(kind, z, block) else {
+            return false;
+        };
         self.update(t, source, kind, y, h, dmat3(r), ctx)
+    }
+
+    /// The innovation test of a position measurement from a source the health layer
+    /// has taken out: computed on a copy, never fused, so health can see when the
+    /// source agrees again (otherwise a rejected source could never come back).
+    pub fn probe_position(
+        &mut self,
+        t: i64,
+        source: &str,
+        kind: &'static str,
+        z: Vector3<f64>,
+        r: &Matrix3<f64>,
+        ctx: &Ctx,
+    ) {
+        let Some((y, h)) = self.position_innovation(kind, z, None) else {
+            return;
+        };
+        let Some(mut probe) = self.ekf.clone() else {
+            return;
+        };
+        let dof = y.nrows();
+        let out = probe.update(&dvec(y.as_slice()), &h, &dmat3(r), ctx.gate(dof), false);
+        let st = self.stats.entry(source.to_string()).or_default();
+        st.kind = kind;
+        st.last_time_us = Some(t);
+        st.test_ratio = out.test_ratio;
+        st.innovation = out.innovation;
+        st.innovation_var = out.innovation_var;
     }
 
     pub fn fuse_world_velocity(
@@ -670,6 +708,9 @@ impl Core {
 
     fn process_entry(&mut self, t: i64, source: &str, data: &SensorData, ctx: &Ctx) {
         if !ctx.usable(source) {
+            if let SensorData::Gnss(g) = data {
+                gnss::probe(self, ctx, t, source, g);
+            }
             return;
         }
         self.advance(t, ctx);
@@ -1023,6 +1064,11 @@ impl Estimator {
         self.barrier = self.core.t;
         self.log.clear();
         self.snaps.clear();
+    }
+
+    /// Time of the newest processed sample (host clock, µs).
+    pub fn state_time(&self) -> Option<i64> {
+        self.core.t
     }
 
     /// Latest fused estimate (None before initialisation).

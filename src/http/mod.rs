@@ -1,28 +1,40 @@
-//! HTTP adapter: the JSON API and the static page. Handlers only read shared state;
-//! nothing here blocks the data path.
+//! HTTP adapter: the JSON API, the live websocket (`/ws`, see `web/PROTOCOL.md`), the
+//! controls, and the page. Handlers only read shared state or send a command; nothing
+//! here blocks the data path.
+
+pub mod hub;
 
 use crate::app::AppState;
-use axum::extract::State;
-use axum::http::{header, StatusCode};
-use axum::response::{Html, IntoResponse, Response};
-use axum::routing::get;
+use crate::pipeline::Command;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{Path, State};
+use axum::http::{header, HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
 use axum::{Json, Router};
+use serde_json::json;
+use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
+use std::time::Duration;
 
-/// The page, compiled into the binary so it runs from any directory.
-const INDEX_HTML: &str = include_str!("../../web/index.html");
+mod assets;
 
 pub fn router(state: Arc<AppState>) -> Router {
     Router::new()
-        .route("/", get(index))
+        .route("/", get(|| assets::serve("index.html")))
+        .route("/app.js", get(|| assets::serve("app.js")))
+        .route("/app.css", get(|| assets::serve("app.css")))
+        .route("/vendor/{file}", get(vendor))
         .route("/healthz", get(healthz))
         .route("/api/v1/status", get(status))
         .route("/api/v1/config", get(config))
+        .route("/api/v1/control/{action}", post(control))
+        .route("/ws", get(ws))
         .with_state(state)
 }
 
-async fn index() -> Html<&'static str> {
-    Html(INDEX_HTML)
+async fn vendor(Path(file): Path<String>) -> Response {
+    assets::serve_vendor(&file)
 }
 
 /// Liveness: the process serves HTTP and its Zenoh session is open.
@@ -39,4 +51,165 @@ async fn status(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {
 
 async fn config(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {
     Json(s.config.redacted_json())
+}
+
+/// Compare without an early exit, so response time does not leak the token's prefix.
+fn token_matches(given: &str, want: &str) -> bool {
+    let (g, w) = (given.as_bytes(), want.as_bytes());
+    let mut diff = g.len() ^ w.len();
+    for (i, b) in w.iter().enumerate() {
+        diff |= usize::from(g.get(i).copied().unwrap_or(0) ^ b);
+    }
+    diff == 0
+}
+
+fn authorised(s: &AppState, headers: &HeaderMap) -> Result<(), Response> {
+    let want = s.config.http.token.as_str();
+    let refuse = |why: &str| {
+        (
+            StatusCode::UNAUTHORIZED,
+            [(header::WWW_AUTHENTICATE, "Bearer")],
+            Json(json!({ "error": why })),
+        )
+            .into_response()
+    };
+    if want.is_empty() {
+        return Err(refuse(
+            "controls are disabled: set http.token in the config to enable them",
+        ));
+    }
+    let given = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .unwrap_or("");
+    if token_matches(given.trim(), want) {
+        Ok(())
+    } else {
+        Err(refuse(
+            "missing or wrong token (Authorization: Bearer <token>)",
+        ))
+    }
+}
+
+async fn control(
+    State(s): State<Arc<AppState>>,
+    Path(action): Path<String>,
+    headers: HeaderMap,
+    body: axum::body::Bytes,
+) -> Response {
+    if let Err(r) = authorised(&s, &headers) {
+        s.controls_refused.fetch_add(1, Relaxed);
+        tracing::warn!(action, "control refused: no valid token");
+        return r;
+    }
+    let bad =
+        |msg: String| (StatusCode::BAD_REQUEST, Json(json!({ "error": msg }))).into_response();
+    let cmd = match action.as_str() {
+        "reset-origin" => Command::ResetOrigin,
+        "flow-calibration" => Command::StartFlowCalibration,
+        "fault" => {
+            let Some(inj) = s.faults.as_ref() else {
+                return bad("fault injection exists only in `skyfuse demo`".into());
+            };
+            return match serde_json::from_slice::<crate::sim::faults::FaultRequest>(&body) {
+                Ok(req) => match inj.inject(&req) {
+                    Ok(msg) => {
+                        tracing::warn!("{msg}");
+                        s.publish_control_event("fault_injected", Some(&req.sensor), &msg);
+                        Json(json!({ "ok": true, "message": msg })).into_response()
+                    }
+                    Err(e) => bad(e),
+                },
+                Err(e) => bad(format!("fault request: {e}")),
+            };
+        }
+        other => {
+            return (
+                StatusCode::NOT_FOUND,
+                Json(json!({ "error": format!("unknown control {other:?}; known: reset-origin, flow-calibration, fault") })),
+            )
+                .into_response()
+        }
+    };
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    if s.commands.send((cmd, tx)).await.is_err() {
+        return (StatusCode::SERVICE_UNAVAILABLE, "estimator stopped\n").into_response();
+    }
+    match tokio::time::timeout(Duration::from_secs(5), rx).await {
+        Ok(Ok(events)) => Json(json!({
+            "ok": true,
+            "events": events.iter().map(|e| &e.message).collect::<Vec<_>>(),
+        }))
+        .into_response(),
+        _ => (
+            StatusCode::SERVICE_UNAVAILABLE,
+            "estimator did not answer\n",
+        )
+            .into_response(),
+    }
+}
+
+async fn ws(State(s): State<Arc<AppState>>, up: WebSocketUpgrade) -> Response {
+    up.on_upgrade(move |socket| client(s, socket))
+}
+
+/// One websocket client: snapshot, then whatever its queue holds. Its queue is the
+/// only thing it can fill; a client that stops reading only loses its own frames.
+async fn client(s: Arc<AppState>, mut socket: WebSocket) {
+    let hub = s.hub.clone();
+    let queue = hub.connect();
+    let snapshot = hub.snapshot(s.status_json());
+    let mut ok = socket.send(Message::Text(snapshot.into())).await.is_ok();
+    while ok {
+        tokio::select! {
+            m = socket.recv() => match m {
+                Some(Ok(Message::Text(t))) => {
+                    if let Ok(v) = serde_json::from_str::<serde_json::Value>(t.as_str()) {
+                        if v["type"] == "subscribe" {
+                            if let Some(hz) = v["max_rate_hz"].as_f64() {
+                                queue.set_max_rate_hz(hz);
+                            }
+                        }
+                    }
+                }
+                Some(Ok(Message::Close(_))) | None | Some(Err(_)) => break,
+                Some(Ok(_)) => {}
+            },
+            _ = queue.notify.notified() => {}
+        }
+        let dropped = queue.dropped_unreported.swap(0, Relaxed);
+        if dropped > 0 {
+            let notice = json!({
+                "type": "dropped",
+                "dropped": dropped,
+                "total": queue.dropped_total.load(Relaxed),
+            });
+            ok &= socket
+                .send(Message::Text(notice.to_string().into()))
+                .await
+                .is_ok();
+        }
+        for f in queue.drain() {
+            if !ok {
+                break;
+            }
+            ok &= socket.send(Message::Text(f.as_ref().into())).await.is_ok();
+        }
+    }
+    hub.disconnect(&queue);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::token_matches;
+
+    #[test]
+    fn token_comparison() {
+        assert!(token_matches("abc", "abc"));
+        assert!(!token_matches("abd", "abc"));
+        assert!(!token_matches("ab", "abc"));
+        assert!(!token_matches("abcd", "abc"));
+        assert!(!token_matches("", "abc"));
+    }
 }

@@ -79,9 +79,9 @@ struct InputHistory {
     suppressed_logs: u64,
 }
 
-/// Arrival rate over roughly one-second windows.
+/// Messages per second over one-second windows.
 #[derive(Debug, Default, Clone)]
-struct RateMeter {
+pub struct RateMeter {
     window_start_us: Option<Micros>,
     count: u64,
     rate_hz: f64,
@@ -90,7 +90,11 @@ struct RateMeter {
 const RATE_WINDOW_US: Micros = 1_000_000;
 
 impl RateMeter {
-    fn tick(&mut self, now: Micros) {
+    pub fn rate_hz(&self) -> f64 {
+        self.rate_hz
+    }
+
+    pub fn tick(&mut self, now: Micros) {
         let start = *self.window_start_us.get_or_insert(now);
         self.count += 1;
         let elapsed = now - start;

@@ -3,15 +3,19 @@
 //! each with its measurement time and the ground truth. [`publish`] puts them on Zenoh
 //! in the real bridges' formats, so the demo exercises the same path as a vehicle.
 
+pub mod faults;
 pub mod publish;
+pub mod scenario;
 pub mod sensors;
 pub mod truth;
 
 use crate::sample::SensorData;
+use faults::FaultSchedule;
 use sensors::{SensorModels, StreamSpec};
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
-use truth::TruthState;
+use std::sync::Arc;
+use truth::{Profile, TruthState};
 
 /// One measurement ready to publish.
 #[derive(Debug, Clone)]
@@ -55,10 +59,31 @@ pub struct Simulator {
     models: SensorModels,
     pending: BinaryHeap<Pending>,
     duration_s: f64,
+    profile: Profile,
+    faults: Arc<FaultSchedule>,
 }
 
 impl Simulator {
     pub fn new(streams: &[StreamSpec], seed: u64, duration_s: f64) -> Self {
+        let sensors = streams.iter().map(|s| s.input_id.to_string()).collect();
+        Self::with_profile(
+            streams,
+            seed,
+            duration_s,
+            Profile::Demo,
+            Arc::new(FaultSchedule::new(sensors, vec![])),
+        )
+    }
+
+    /// A flight of `profile` whose sensors suffer the faults in `faults` (which can
+    /// also be changed while it runs).
+    pub fn with_profile(
+        streams: &[StreamSpec],
+        seed: u64,
+        duration_s: f64,
+        profile: Profile,
+        faults: Arc<FaultSchedule>,
+    ) -> Self {
         Self {
             streams: streams.to_vec(),
             // Stagger first samples so streams do not all fire on the same tick.
@@ -67,10 +92,16 @@ impl Simulator {
                 .enumerate()
                 .map(|(i, s)| (i as f64 * 0.37e-3) % (1.0 / s.rate_hz))
                 .collect(),
-            models: SensorModels::new(seed),
+            models: SensorModels::with_profile(seed, profile),
             pending: BinaryHeap::new(),
             duration_s,
+            profile,
+            faults,
         }
+    }
+
+    pub fn faults(&self) -> Arc<FaultSchedule> {
+        self.faults.clone()
     }
 
     pub fn origin(&self) -> crate::geo::LocalEnu {
@@ -83,8 +114,16 @@ impl Simulator {
             while self.next_measure[i] <= horizon && self.next_measure[i] < self.duration_s {
                 let spec = self.streams[i];
                 let t = self.next_measure[i];
-                let truth = truth::truth(t);
-                let data = self.models.measure(spec.kind, &truth);
+                self.next_measure[i] = t + 1.0 / spec.rate_hz;
+                self.faults.set_now(t);
+                let truth = truth::truth_of(self.profile, t);
+                let started = self.faults.started(spec.input_id, t);
+                let active: Vec<_> = started.iter().filter(|f| t < f.end_s).cloned().collect();
+                if faults::suppressed(&active) {
+                    continue;
+                }
+                let mut data = self.models.measure_with(spec.kind, &truth, &started);
+                faults::apply(&mut data, &active, t);
                 self.pending.push(Pending(SimEvent {
                     stream: i,
                     measured_t: t,
@@ -92,7 +131,6 @@ impl Simulator {
                     data,
                     truth,
                 }));
-                self.next_measure[i] = t + 1.0 / spec.rate_hz;
             }
         }
     }

@@ -2,7 +2,8 @@
 //! each real sensor (T265 odometry in its own frame, flow that sees rotation, GPS with
 //! no fix indoors). Deterministic for a given seed.
 
-use super::truth::{truth, TruthState};
+use super::faults::{Fault, FaultKind, DRIFT_MPS};
+use super::truth::{truth_of, Profile, TruthState};
 use crate::geo::LocalEnu;
 use crate::sample::*;
 use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector2, Vector3};
@@ -101,6 +102,7 @@ pub struct SensorModels {
     gps_bias: Vector3<f64>,
     gps_last_t: Option<f64>,
     last_fix: (f64, f64, f64),
+    profile: Profile,
 }
 
 fn n(rng: &mut SmallRng, sigma: f64) -> f64 {
@@ -115,10 +117,14 @@ fn n3(rng: &mut SmallRng, sigma: f64) -> Vector3<f64> {
 
 impl SensorModels {
     pub fn new(seed: u64) -> Self {
+        Self::with_profile(seed, Profile::Demo)
+    }
+
+    pub fn with_profile(seed: u64, profile: Profile) -> Self {
         let mut rng = SmallRng::seed_from_u64(seed);
         let gyro_bias = n3(&mut rng, 0.003);
         let accel_bias = n3(&mut rng, 0.05);
-        let start = truth(0.0);
+        let start = truth_of(profile, 0.0);
         Self {
             rng,
             origin: LocalEnu::new(HOME_LAT, HOME_LON, HOME_ALT),
@@ -130,14 +136,25 @@ impl SensorModels {
             gps_bias: Vector3::zeros(),
             gps_last_t: None,
             last_fix: (HOME_LAT, HOME_LON, HOME_ALT),
+            profile,
         }
     }
 
     pub fn measure(&mut self, kind: SensorKind, s: &TruthState) -> SensorData {
+        self.measure_with(kind, s, &[])
+    }
+
+    /// Measure with the lasting effects of faults that have started (`drift`, `reset`).
+    pub fn measure_with(
+        &mut self,
+        kind: SensorKind,
+        s: &TruthState,
+        started: &[Fault],
+    ) -> SensorData {
         match kind {
             SensorKind::Imu => SensorData::Imu(self.imu(s)),
             SensorKind::Attitude => SensorData::Attitude(self.attitude(s)),
-            SensorKind::Odometry => SensorData::Odometry(self.t265(s)),
+            SensorKind::Odometry => SensorData::Odometry(self.t265_with(s, started)),
             SensorKind::Flow => SensorData::Flow(self.flow(s)),
             SensorKind::Range => SensorData::Range(self.range(s)),
             SensorKind::Gnss => SensorData::Gnss(self.gps(s)),
@@ -175,14 +192,37 @@ impl SensorModels {
     }
 
     pub fn t265(&mut self, s: &TruthState) -> Odometry {
+        self.t265_with(s, &[])
+    }
+
+    fn t265_with(&mut self, s: &TruthState, started: &[Fault]) -> Odometry {
         if let Some(last) = self.t265_last_t {
             let dt = (s.t - last).max(0.0);
             self.t265_drift += n3(&mut self.rng, T265_DRIFT_RW * dt.sqrt());
         }
         self.t265_last_t = Some(s.t);
-        let (p0, q0) = self.t265_origin;
-        let position =
-            q0.inverse() * (s.position - p0) + self.t265_drift + n3(&mut self.rng, T265_POS_NOISE);
+        let (mut p0, mut q0) = self.t265_origin;
+        let mut fault_drift = Vector3::zeros();
+        let mut resets = 0u8;
+        for f in started {
+            match f.kind {
+                FaultKind::Drift => {
+                    fault_drift.x += DRIFT_MPS * (s.t.min(f.end_s) - f.start_s).max(0.0);
+                }
+                FaultKind::Reset => {
+                    // Tracking lost and restarted: the odometry frame is where it restarted.
+                    let r = truth_of(self.profile, f.start_s);
+                    (p0, q0) = (r.position, r.attitude);
+                    fault_drift = Vector3::zeros();
+                    resets = resets.wrapping_add(1);
+                }
+                _ => {}
+            }
+        }
+        let position = q0.inverse() * (s.position - p0)
+            + self.t265_drift
+            + fault_drift
+            + n3(&mut self.rng, T265_POS_NOISE);
         let mut pose_cov = Matrix6::zeros();
         for i in 0..6 {
             pose_cov[(i, i)] = T265_POSE_VAR;
@@ -196,7 +236,7 @@ impl SensorModels {
             twist_cov: Some(pose_cov),
             frame_id: "camera_odom_frame".into(),
             child_frame_id: "camera_pose_frame".into(),
-            reset_counter: None,
+            reset_counter: (resets > 0).then_some(resets),
             quality: None,
         }
     }
@@ -299,6 +339,7 @@ impl SensorModels {
 
 #[cfg(test)]
 mod tests {
+    use super::super::truth::truth;
     use super::*;
 
     #[test]

@@ -47,14 +47,31 @@ fn envelope(t: f64) -> f64 {
     smoothstep5((t - T_CRUISE) / ramp) * (1.0 - smoothstep5((t - (T_LANDING - ramp)) / ramp))
 }
 
-fn position_at(t_loop: f64) -> Vector3<f64> {
+/// The shape of the flight.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Profile {
+    /// Take-off, figure-eight with an indoor stretch (70–100 s) without GPS, landing.
+    Demo,
+    /// The same flight, outdoors throughout.
+    Figure8,
+    /// The same flight, indoors throughout (no GPS fix ever).
+    Indoor,
+    /// Take-off, hold position with slow yaw changes, landing.
+    Hover,
+}
+
+fn position_at(profile: Profile, t_loop: f64) -> Vector3<f64> {
     let t = t_loop;
     let z = CRUISE_HEIGHT
         * smoothstep5((t - T_TAKEOFF) / (T_CRUISE - T_TAKEOFF))
         * (1.0 - smoothstep5((t - T_LANDING) / (T_LANDED - T_LANDING)));
     let w = 2.0 * PI / EIGHT_PERIOD;
     let tau = (t - T_CRUISE).max(0.0);
-    let e = envelope(t);
+    let e = if profile == Profile::Hover {
+        0.0
+    } else {
+        envelope(t)
+    };
     Vector3::new(
         e * EIGHT_A * (w * tau).sin(),
         e * EIGHT_A * 0.5 * (2.0 * w * tau).sin(),
@@ -75,8 +92,14 @@ fn attitude_from(acc: Vector3<f64>, yaw: f64) -> UnitQuaternion<f64> {
     q_tilt * q_yaw
 }
 
-/// Truth at time `t` seconds since the start of the flight (loops every [`LOOP_S`]).
+/// Truth of the demo flight at time `t` seconds since the start (loops every [`LOOP_S`]).
 pub fn truth(t: f64) -> TruthState {
+    truth_of(Profile::Demo, t)
+}
+
+/// Truth of a flight `profile` at time `t` seconds since the start (loops every [`LOOP_S`]).
+pub fn truth_of(profile: Profile, t: f64) -> TruthState {
+    let position_at = |t: f64| position_at(profile, t);
     let tl = t.rem_euclid(LOOP_S);
     let h = 1e-3;
     let p0 = position_at(tl - h);
@@ -100,7 +123,11 @@ pub fn truth(t: f64) -> TruthState {
         acceleration,
         attitude,
         body_rate,
-        indoor: (T_INDOOR..T_OUTDOOR_AGAIN).contains(&tl),
+        indoor: match profile {
+            Profile::Demo => (T_INDOOR..T_OUTDOOR_AGAIN).contains(&tl),
+            Profile::Indoor => true,
+            Profile::Figure8 | Profile::Hover => false,
+        },
     }
 }
 

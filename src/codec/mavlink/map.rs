@@ -319,8 +319,10 @@ fn optical_flow(f: &Fields) -> Result<Mapped, DecodeError> {
     let ground = f.f32_any("ground_distance")?;
     let quality = f.uint("quality", u8::MAX.into())? as u8;
     // The rate extension is absent from MAVLink 1 frames and old senders.
+    // PX4's sensor convention (FRD axes, right-handed rotation positive) to the
+    // sample's FLU: y changes sign (see `OpticalFlow::rate`).
     let rate = match (f.ext_f32("flow_rate_x")?, f.ext_f32("flow_rate_y")?) {
-        (Some(x), Some(y)) if x.is_finite() && y.is_finite() => Some(Vector2::new(x, y)),
+        (Some(x), Some(y)) if x.is_finite() && y.is_finite() => Some(Vector2::new(x, -y)),
         _ => None,
     };
     Ok(Some((
@@ -354,8 +356,9 @@ fn optical_flow_rad(f: &Fields) -> Result<Mapped, DecodeError> {
     Ok(Some((
         stamp,
         SensorData::Flow(OpticalFlow {
-            // The rate keeps the sensor's (PX4's) sign convention, as the sample defines.
-            rate: dt.map(|dt| Vector2::new(ix / dt, iy / dt)),
+            // PX4's convention (FRD axes, right-handed rotation positive) to the
+            // sample's FLU: y changes sign, as the gyro's does.
+            rate: dt.map(|dt| Vector2::new(ix / dt, -iy / dt)),
             gyro: dt.and_then(|dt| gyro.map(|g| frames::frd_to_flu(g / dt))),
             velocity: None,
             integration_s: dt,

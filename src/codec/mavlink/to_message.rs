@@ -147,7 +147,8 @@ pub fn sample_to_message(stamp_us: Micros, data: &SensorData) -> Result<MavMessa
                                 u32::MAX.into(),
                             )?,
                             integrated_x: f32_of("flow.rate.x", rate.x * dt)?,
-                            integrated_y: f32_of("flow.rate.y", rate.y * dt)?,
+                            // FLU → PX4's FRD convention (see the decoder).
+                            integrated_y: f32_of("flow.rate.y", -rate.y * dt)?,
                             integrated_xgyro: f32_or_nan(gyro.x),
                             integrated_ygyro: f32_or_nan(gyro.y),
                             integrated_zgyro: f32_or_nan(gyro.z),
@@ -159,7 +160,7 @@ pub fn sample_to_message(stamp_us: Micros, data: &SensorData) -> Result<MavMessa
                 }
                 None => {
                     let [vx, vy] = fl.velocity.map(|v| [v.x, -v.y]).unwrap_or([f64::NAN; 2]);
-                    let [rx, ry] = fl.rate.map(|r| [r.x, r.y]).unwrap_or([f64::NAN; 2]);
+                    let [rx, ry] = fl.rate.map(|r| [r.x, -r.y]).unwrap_or([f64::NAN; 2]);
                     Ok(MavMessage::OPTICAL_FLOW(common::OPTICAL_FLOW_DATA {
                         time_usec: usec(stamp_us)?,
                         flow_comp_m_x: f32_or_nan(vx),

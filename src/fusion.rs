@@ -1,0 +1,110 @@
+//! The estimator under health supervision: every sample is checked, the health layer's
+//! verdicts decide which sources the estimator may fuse, and both produce events. The
+//! service ([`crate::pipeline`]) and offline runs ([`crate::offline`]) use this same
+//! core, so what is measured offline is what flies. Pure: time comes with the samples.
+
+use crate::estimator::{Estimator, EstimatorConfig, EstimatorEvent};
+use crate::health::{HealthConfig, HealthMonitor, Transition};
+use crate::sample::{Sample, SensorKind};
+use serde_json::json;
+
+/// Health is re-evaluated at most this often (host time), µs.
+const EVALUATE_EVERY_US: i64 = 20_000;
+
+pub struct Fusion {
+    pub est: Estimator,
+    pub health: HealthMonitor,
+    last_eval_us: Option<i64>,
+    last_status_us: Option<i64>,
+    /// Samples refused before fusion (non-finite or out of bounds).
+    pub invalid: u64,
+}
+
+/// `(id, kind, expected rate Hz, enabled)` of each input.
+pub type InputList = Vec<(String, SensorKind, f64, bool)>;
+
+impl Fusion {
+    pub fn new(est: EstimatorConfig, health: HealthConfig, inputs: &InputList) -> Self {
+        Self {
+            est: Estimator::new(est),
+            health: HealthMonitor::new(health, inputs),
+            last_eval_us: None,
+            last_status_us: None,
+            invalid: 0,
+        }
+    }
+
+    /// Check, fuse, judge. `now_us` is the host time of the sample's arrival.
+    pub fn process(&mut self, s: &Sample, now_us: i64) -> Vec<EstimatorEvent> {
+        let mut events = Vec::new();
+        if let Err(why) = s.data.validate() {
+            // Nothing invalid reaches the estimator, whoever produced it.
+            self.invalid += 1;
+            self.health
+                .on_rejected(&s.source, "invalid_value", &why, now_us);
+        } else {
+            self.health.on_sample(s, now_us);
+            if s.data.kind() != SensorKind::AutopilotEstimate {
+                for e in self.est.process(s) {
+                    if e.kind == "monitor_reset" {
+                        self.health.on_divergence(&e.message, now_us);
+                    }
+                    events.push(e);
+                }
+            }
+        }
+        events.extend(self.tick(now_us));
+        events
+    }
+
+    /// A sample rejected by ingest (malformed, wrong type, time backwards).
+    pub fn rejected(&mut self, source: &str, code: &'static str, text: &str, now_us: i64) {
+        self.health.on_rejected(source, code, text, now_us);
+    }
+
+    /// Re-evaluate health (also called on a timer, so staleness is seen without data).
+    pub fn tick(&mut self, now_us: i64) -> Vec<EstimatorEvent> {
+        if self
+            .last_eval_us
+            .is_some_and(|l| now_us >= l && now_us - l < EVALUATE_EVERY_US)
+        {
+            return vec![];
+        }
+        self.last_eval_us = Some(now_us);
+        if self
+            .last_status_us
+            .is_none_or(|l| now_us < l || now_us - l >= 100_000)
+        {
+            self.last_status_us = Some(now_us);
+            let st = self.est.state_summary();
+            self.health.on_estimator(&st, now_us);
+        }
+        let mut events = Vec::new();
+        for tr in self.health.evaluate(now_us) {
+            events.push(transition_event(&tr));
+            if tr.sensor != crate::health::ESTIMATOR_ID {
+                let reason = tr.reasons.first().map(|r| r.code).unwrap_or(tr.to.as_str());
+                events.extend(
+                    self.est
+                        .set_source_usable(&tr.sensor, tr.to.usable(), reason),
+                );
+            }
+        }
+        events
+    }
+}
+
+/// A health transition as an event.
+pub fn transition_event(tr: &Transition) -> EstimatorEvent {
+    EstimatorEvent {
+        time_us: tr.time_us,
+        kind: "health",
+        source: Some(tr.sensor.clone()),
+        message: tr.message(),
+        data: json!({
+            "from": tr.from,
+            "to": tr.to,
+            "reasons": tr.reasons,
+        }),
+    }
+}

@@ -1,0 +1,238 @@
+use super::*;
+use crate::sample::*;
+use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector2, Vector3};
+use std::sync::Arc;
+
+fn monitor() -> HealthMonitor {
+    HealthMonitor::new(
+        HealthConfig::default(),
+        &[
+            ("gps".into(), SensorKind::Gnss, 10.0, true),
+            ("flow".into(), SensorKind::Flow, 50.0, true),
+            ("t265".into(), SensorKind::Odometry, 200.0, true),
+            ("imu".into(), SensorKind::Imu, 200.0, true),
+            ("lidar".into(), SensorKind::Range, 20.0, false),
+        ],
+    )
+}
+
+fn fix(east_m: f64, fix: GnssFixType) -> Sample {
+    let o = crate::geo::LocalEnu::new(47.0, 8.0, 400.0);
+    let (lat, lon, alt) = o.to_geodetic(Vector3::new(east_m, 0.0, 0.0));
+    Sample {
+        source: Arc::from("gps"),
+        stamp_us: None,
+        arrival_us: 0,
+        data: SensorData::Gnss(GnssFix {
+            lat_deg: lat,
+            lon_deg: lon,
+            alt_m: alt,
+            fix,
+            position_cov: Some(Matrix3::identity() * 0.5),
+            satellites: Some(14),
+            hdop: Some(0.8),
+            vdop: None,
+            velocity: None,
+        }),
+    }
+}
+
+fn flow(quality: u8, tof: f64) -> Sample {
+    Sample {
+        source: Arc::from("flow"),
+        stamp_us: None,
+        arrival_us: 0,
+        data: SensorData::Flow(OpticalFlow {
+            rate: Some(Vector2::new(0.1, 0.0)),
+            gyro: None,
+            velocity: None,
+            integration_s: Some(0.02),
+            quality,
+            status: Some(1),
+            tof: Some(Tof {
+                distance_m: tof,
+                strength: Some(200),
+                precision: None,
+                status: Some(0),
+            }),
+        }),
+    }
+}
+
+fn odom(var: f64, x: f64) -> Sample {
+    Sample {
+        source: Arc::from("t265"),
+        stamp_us: None,
+        arrival_us: 0,
+        data: SensorData::Odometry(Odometry {
+            position: Vector3::new(x, 0.0, 1.0),
+            orientation: UnitQuaternion::identity(),
+            velocity: Some(Vector3::zeros()),
+            angular_velocity: None,
+            pose_cov: Some(Matrix6::identity() * var),
+            twist_cov: None,
+            frame_id: String::new(),
+            child_frame_id: String::new(),
+            reset_counter: None,
+            quality: None,
+        }),
+    }
+}
+
+/// Feed `make(t)` every `period_ms` from `from_ms` to `to_ms`, evaluating each time;
+/// returns the transitions of `sensor`.
+fn run(
+    m: &mut HealthMonitor,
+    sensor: &str,
+    from_ms: i64,
+    to_ms: i64,
+    period_ms: i64,
+    make: impl Fn(i64) -> Sample,
+) -> Vec<Transition> {
+    let mut out = vec![];
+    let mut t = from_ms;
+    while t < to_ms {
+        m.on_sample(&make(t), t * 1000);
+        out.extend(
+            m.evaluate(t * 1000)
+                .into_iter()
+                .filter(|tr| tr.sensor == sensor),
+        );
+        t += period_ms;
+    }
+    out
+}
+
+#[test]
+fn gnss_loss_is_failed_after_the_confirm_time_and_taken_back_after_recover() {
+    let mut m = monitor();
+    let tr = run(&mut m, "gps", 0, 5000, 100, |_| {
+        fix(0.0, GnssFixType::Fix3d)
+    });
+    assert_eq!(tr.len(), 1, "{tr:?}");
+    assert_eq!(
+        (tr[0].from, tr[0].to),
+        (HealthState::NoData, HealthState::Ok)
+    );
+    let tr = run(&mut m, "gps", 5000, 10_000, 100, |_| {
+        fix(0.0, GnssFixType::NoFix)
+    });
+    assert_eq!(tr.len(), 1, "{tr:?}");
+    assert_eq!(tr[0].to, HealthState::Failed);
+    assert_eq!(tr[0].reasons[0].code, "gnss_no_fix");
+    // Confirmed 300 ms after the first bad fix.
+    assert_eq!(tr[0].time_us, 5_300_000);
+    assert!(!m.usable("gps"));
+    let tr = run(&mut m, "gps", 10_000, 20_000, 100, |_| {
+        fix(0.0, GnssFixType::Fix3d)
+    });
+    assert_eq!(tr.len(), 1, "{tr:?}");
+    assert_eq!(tr[0].to, HealthState::Ok);
+    // Hold 500 ms + recover 3000 ms after the last bad fix (9.9 s).
+    assert!(
+        (13_300_000..=13_600_000).contains(&tr[0].time_us),
+        "{}",
+        tr[0].time_us
+    );
+}
+
+#[test]
+fn a_borderline_sensor_does_not_flap() {
+    let mut m = monitor();
+    run(&mut m, "flow", 0, 2000, 20, |_| flow(200, 1.5));
+    // Quality dips below the limit on every 10th sample only (a single 20 ms blip).
+    let tr = run(&mut m, "flow", 2000, 30_000, 20, |t| {
+        flow(if t % 200 == 0 { 40 } else { 200 }, 1.5)
+    });
+    // A condition lives 500 ms after each blip: the raw state is bad for good, so it
+    // fails once and stays failed, never flapping.
+    assert!(tr.len() <= 1, "{tr:?}");
+}
+
+#[test]
+fn flow_on_the_ground_is_not_a_fault_but_a_dark_floor_is() {
+    let mut m = monitor();
+    let tr = run(&mut m, "flow", 0, 3000, 20, |_| flow(20, 0.09));
+    assert!(tr.iter().all(|t| t.to == HealthState::Ok), "{tr:?}");
+    let tr = run(&mut m, "flow", 3000, 6000, 20, |_| flow(8, 1.5));
+    assert_eq!(tr.last().map(|t| t.to), Some(HealthState::Failed));
+    assert_eq!(
+        tr.last().map(|t| t.reasons[0].code),
+        Some("flow_quality_low")
+    );
+    let tr = run(&mut m, "flow", 6000, 9000, 20, |_| flow(200, 9.5));
+    assert!(
+        m.sensor("flow")
+            .is_some_and(|s| s.reasons.iter().any(|r| r.code == "tof_out_of_range")),
+        "{tr:?}"
+    );
+}
+
+#[test]
+fn t265_covariance_levels() {
+    let mut m = monitor();
+    run(&mut m, "t265", 0, 2000, 5, |_| odom(1e-4, 0.0));
+    assert_eq!(m.sensor("t265").map(|s| s.state), Some(HealthState::Ok));
+    run(&mut m, "t265", 2000, 4000, 5, |_| odom(0.002, 0.0));
+    assert_eq!(
+        m.sensor("t265").map(|s| s.state),
+        Some(HealthState::Degraded)
+    );
+    assert!(m.usable("t265"));
+    run(&mut m, "t265", 4000, 6000, 5, |_| odom(0.01, 0.0));
+    assert_eq!(m.sensor("t265").map(|s| s.state), Some(HealthState::Failed));
+    assert!(!m.usable("t265"));
+}
+
+#[test]
+fn a_sensor_that_stops_goes_stale_and_a_disabled_one_stays_disabled() {
+    let mut m = monitor();
+    run(&mut m, "gps", 0, 2000, 100, |_| {
+        fix(0.0, GnssFixType::Fix3d)
+    });
+    // Last fix at 1.9 s; stale after 500 ms = 5 periods at 10 Hz.
+    let tr = m.evaluate(2_350_000);
+    assert!(tr.is_empty(), "{tr:?}");
+    let tr = m.evaluate(2_450_000);
+    assert_eq!(
+        tr.iter().find(|t| t.sensor == "gps").map(|t| t.to),
+        Some(HealthState::Stale)
+    );
+    assert_eq!(
+        m.sensor("lidar").map(|s| s.state),
+        Some(HealthState::Disabled)
+    );
+}
+
+#[test]
+fn gnss_jump_is_caught() {
+    let mut m = monitor();
+    run(&mut m, "gps", 0, 3000, 100, |_| {
+        fix(0.0, GnssFixType::Fix3d)
+    });
+    let tr = run(&mut m, "gps", 3000, 4000, 100, |t| {
+        fix(if t >= 3000 { 12.0 } else { 0.0 }, GnssFixType::Fix3d)
+    });
+    // One jump sample keeps the condition for the hold time, longer than confirm.
+    assert_eq!(
+        tr.first().map(|t| t.reasons[0].code),
+        Some("gnss_jump"),
+        "{tr:?}"
+    );
+}
+
+#[test]
+fn rejected_samples_fail_the_sensor() {
+    let mut m = monitor();
+    run(&mut m, "gps", 0, 2000, 100, |_| {
+        fix(0.0, GnssFixType::Fix3d)
+    });
+    for t in (2000..3000).step_by(100) {
+        m.on_rejected("gps", "invalid_value", "latitude is NaN", t * 1000);
+        m.on_sample(&fix(0.0, GnssFixType::Fix3d), t * 1000);
+        m.evaluate(t * 1000);
+    }
+    let s = m.sensor("gps").expect("gps");
+    assert_eq!(s.state, HealthState::Failed);
+    assert_eq!(s.reasons[0].code, "invalid_value");
+}

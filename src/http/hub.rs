@@ -1,0 +1,280 @@
+//! The websocket hub: the data path publishes frames without ever waiting; each client
+//! has a bounded queue that drops its oldest frame when the browser is slow (foxglove's
+//! websocket server does the same), counts the drops and tells the client.
+//!
+//! Frames are serialized once and shared (`Arc<str>`) by every client. `tick` frames are
+//! downsampled per client (`subscribe` message); `status` and `event` frames are not.
+
+use serde_json::json;
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, Mutex, MutexGuard};
+use tokio::sync::Notify;
+
+/// Frames a client may have waiting before the oldest is dropped.
+pub const CLIENT_QUEUE_FRAMES: usize = 256;
+/// Default per-client tick rate, Hz.
+pub const DEFAULT_TICK_HZ: f64 = 20.0;
+pub const MAX_TICK_HZ: f64 = 50.0;
+pub const MIN_TICK_HZ: f64 = 1.0;
+/// Tick history for the snapshot: 60 s at ≤ 10 Hz.
+const HISTORY_TICKS: usize = 600;
+const HISTORY_TICK_INTERVAL_US: i64 = 100_000;
+const HISTORY_EVENTS: usize = 200;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameKind {
+    Tick,
+    Status,
+    Event,
+}
+
+/// One connected client's queue.
+pub struct ClientQueue {
+    frames: Mutex<VecDeque<Arc<str>>>,
+    pub notify: Notify,
+    capacity: usize,
+    pub dropped_total: AtomicU64,
+    /// Drops not yet reported to the client.
+    pub dropped_unreported: AtomicU64,
+    /// Minimum interval between ticks for this client, µs.
+    tick_interval_us: AtomicU64,
+    last_tick_us: Mutex<Option<i64>>,
+}
+
+impl ClientQueue {
+    fn new(capacity: usize) -> Self {
+        Self {
+            frames: Mutex::new(VecDeque::with_capacity(capacity)),
+            notify: Notify::new(),
+            capacity,
+            dropped_total: AtomicU64::new(0),
+            dropped_unreported: AtomicU64::new(0),
+            tick_interval_us: AtomicU64::new((1e6 / DEFAULT_TICK_HZ) as u64),
+            last_tick_us: Mutex::new(None),
+        }
+    }
+
+    /// Set this client's tick rate (clamped to [`MIN_TICK_HZ`], [`MAX_TICK_HZ`]).
+    pub fn set_max_rate_hz(&self, hz: f64) {
+        let hz = if hz.is_finite() {
+            hz.clamp(MIN_TICK_HZ, MAX_TICK_HZ)
+        } else {
+            DEFAULT_TICK_HZ
+        };
+        self.tick_interval_us.store((1e6 / hz) as u64, Relaxed);
+    }
+
+    fn push(&self, kind: FrameKind, t_us: i64, frame: &Arc<str>) -> bool {
+        if kind == FrameKind::Tick {
+            let mut last = lock(&self.last_tick_us);
+            let interval = self.tick_interval_us.load(Relaxed) as i64;
+            // A tick more than a second older than the last one means the clock moved
+            // back (a new simulator run): start over rather than go silent.
+            if let Some(l) = *last {
+                if t_us >= l && t_us - l < interval {
+                    return false;
+                }
+            }
+            *last = Some(t_us);
+        }
+        let mut q = lock(&self.frames);
+        if q.len() >= self.capacity {
+            q.pop_front();
+            self.dropped_total.fetch_add(1, Relaxed);
+            self.dropped_unreported.fetch_add(1, Relaxed);
+        }
+        q.push_back(frame.clone());
+        true
+    }
+
+    /// Take everything queued.
+    pub fn drain(&self) -> Vec<Arc<str>> {
+        lock(&self.frames).drain(..).collect()
+    }
+
+    pub fn len(&self) -> usize {
+        lock(&self.frames).len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panicking holder cannot leave these queues inconsistent: keep going.
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Shared by the data path (publishers) and the websocket handlers (clients).
+pub struct Hub {
+    clients: Mutex<Vec<Arc<ClientQueue>>>,
+    ticks: Mutex<VecDeque<(i64, Arc<str>)>>,
+    events: Mutex<VecDeque<Arc<str>>>,
+    pub frames_published: AtomicU64,
+    dropped_closed: AtomicU64,
+    queue_capacity: usize,
+}
+
+impl Default for Hub {
+    fn default() -> Self {
+        Self::new(CLIENT_QUEUE_FRAMES)
+    }
+}
+
+impl Hub {
+    pub fn new(queue_capacity: usize) -> Self {
+        Self {
+            clients: Mutex::new(Vec::new()),
+            ticks: Mutex::new(VecDeque::new()),
+            events: Mutex::new(VecDeque::new()),
+            frames_published: AtomicU64::new(0),
+            dropped_closed: AtomicU64::new(0),
+            queue_capacity,
+        }
+    }
+
+    /// Publish a frame to every client. Never waits on a client.
+    pub fn publish(&self, kind: FrameKind, t_us: i64, frame: serde_json::Value) {
+        let text: Arc<str> = frame.to_string().into();
+        self.frames_published.fetch_add(1, Relaxed);
+        match kind {
+            FrameKind::Tick => {
+                let mut h = lock(&self.ticks);
+                let keep = match h.back() {
+                    Some((last, _)) => t_us < *last || t_us - *last >= HISTORY_TICK_INTERVAL_US,
+                    None => true,
+                };
+                if keep {
+                    if h.len() >= HISTORY_TICKS {
+                        h.pop_front();
+                    }
+                    h.push_back((t_us, text.clone()));
+                }
+            }
+            FrameKind::Event => {
+                let mut e = lock(&self.events);
+                if e.len() >= HISTORY_EVENTS {
+                    e.pop_front();
+                }
+                e.push_back(text.clone());
+            }
+            FrameKind::Status => {}
+        }
+        let clients = lock(&self.clients).clone();
+        for c in clients {
+            if c.push(kind, t_us, &text) {
+                c.notify.notify_one();
+            }
+        }
+    }
+
+    /// Register a client; its snapshot is built from `status`.
+    pub fn connect(&self) -> Arc<ClientQueue> {
+        let c = Arc::new(ClientQueue::new(self.queue_capacity));
+        lock(&self.clients).push(c.clone());
+        c
+    }
+
+    pub fn disconnect(&self, c: &Arc<ClientQueue>) {
+        lock(&self.clients).retain(|x| !Arc::ptr_eq(x, c));
+        self.dropped_closed
+            .fetch_add(c.dropped_total.load(Relaxed), Relaxed);
+    }
+
+    /// The `snapshot` frame for a new client: status, recent ticks and events. The
+    /// stored frames are embedded as parsed JSON.
+    pub fn snapshot(&self, status: serde_json::Value) -> String {
+        let ticks: Vec<serde_json::Value> = lock(&self.ticks)
+            .iter()
+            .filter_map(|(_, f)| serde_json::from_str(f).ok())
+            .collect();
+        let events: Vec<serde_json::Value> = lock(&self.events)
+            .iter()
+            .filter_map(|f| {
+                let v: serde_json::Value = serde_json::from_str(f).ok()?;
+                v.get("event").cloned()
+            })
+            .collect();
+        json!({
+            "type": "snapshot",
+            "protocol": 1,
+            "status": status,
+            "ticks": ticks,
+            "events": events,
+        })
+        .to_string()
+    }
+
+    pub fn stats_json(&self) -> serde_json::Value {
+        let clients = lock(&self.clients).clone();
+        let live: u64 = clients.iter().map(|c| c.dropped_total.load(Relaxed)).sum();
+        json!({
+            "clients": clients.len(),
+            "dropped_total": live + self.dropped_closed.load(Relaxed),
+            "frames_published": self.frames_published.load(Relaxed),
+            "queue_capacity": self.queue_capacity,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tick(t: i64) -> serde_json::Value {
+        json!({"type": "tick", "t": t as f64 / 1e6})
+    }
+
+    #[test]
+    fn a_client_that_never_reads_drops_oldest_and_counts() {
+        let hub = Hub::new(8);
+        let slow = hub.connect();
+        slow.set_max_rate_hz(MAX_TICK_HZ);
+        for i in 0..100 {
+            hub.publish(FrameKind::Tick, i * 100_000, tick(i * 100_000));
+        }
+        assert_eq!(slow.len(), 8);
+        assert_eq!(slow.dropped_total.load(Relaxed), 92);
+        // The newest frames survive.
+        let frames = slow.drain();
+        assert!(frames[7].contains("9.9"), "{}", frames[7]);
+        assert_eq!(hub.stats_json()["dropped_total"], 92);
+    }
+
+    #[test]
+    fn ticks_are_downsampled_per_client_but_events_are_not() {
+        let hub = Hub::new(1000);
+        let fast = hub.connect();
+        fast.set_max_rate_hz(50.0);
+        let phone = hub.connect();
+        phone.set_max_rate_hz(5.0);
+        // 1 s of ticks at 100 Hz.
+        for i in 0..100 {
+            hub.publish(FrameKind::Tick, i * 10_000, tick(i * 10_000));
+        }
+        hub.publish(FrameKind::Event, 990_000, json!({"type": "event"}));
+        assert_eq!(fast.len(), 50 + 1);
+        assert_eq!(phone.len(), 5 + 1);
+    }
+
+    #[test]
+    fn snapshot_carries_history_and_events() {
+        let hub = Hub::new(10);
+        for i in 0..50 {
+            hub.publish(FrameKind::Tick, i * 50_000, tick(i * 50_000));
+        }
+        hub.publish(
+            FrameKind::Event,
+            0,
+            json!({"type": "event", "event": {"message": "gps lost"}}),
+        );
+        let snap: serde_json::Value =
+            serde_json::from_str(&hub.snapshot(json!({"sensors": []}))).expect("json");
+        assert_eq!(snap["type"], "snapshot");
+        // 2.5 s of ticks at 20 Hz kept at 10 Hz.
+        assert_eq!(snap["ticks"].as_array().map(Vec::len), Some(25));
+        assert_eq!(snap["events"][0]["message"], "gps lost");
+    }
+}

@@ -1,0 +1,652 @@
+//! MAVLink out: VISION_POSITION_ESTIMATE (and optionally VISION_SPEED_ESTIMATE,
+//! ODOMETRY) at a fixed rate from the latest fused pose, HEARTBEAT at 1 Hz, to every
+//! configured endpoint and/or through mavlink-server on Zenoh.
+//!
+//! Each endpoint has its own task and a small bounded queue: a link that is down or slow
+//! loses its own frames (counted) and reconnects with back-off; it never delays the
+//! others, and nothing here can block the estimator (which only writes a `watch`).
+
+use super::vpe::{self, MessageSet, VpeError};
+use crate::config::MavlinkConfig;
+use crate::ingest::{now_us, RateMeter};
+use crate::pipeline::PoseReceiver;
+use mavlink::MavHeader;
+use serde::Serialize;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::io::AsyncWriteExt;
+use tokio::sync::mpsc;
+
+/// Frames waiting per endpoint before new ones are dropped.
+const LINK_QUEUE: usize = 64;
+const BACKOFF_MIN: Duration = Duration::from_millis(250);
+const BACKOFF_MAX: Duration = Duration::from_secs(10);
+const HEARTBEAT_INTERVAL_US: i64 = 1_000_000;
+
+/// Where MAVLink goes, parsed from the address strings users know from MAVProxy and
+/// mavlink-router.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Endpoint {
+    /// Send to HOST:PORT (the autopilot or a router listens there).
+    UdpOut(String),
+    /// Listen on ADDR:PORT; send to whoever last sent us a datagram.
+    UdpIn(String),
+    /// Connect to HOST:PORT (SITL's TCP port, mavlink-router's TCP server).
+    TcpOut(String),
+    /// A serial device at a baud rate.
+    Serial { path: String, baud: u32 },
+}
+
+impl Endpoint {
+    pub fn parse(s: &str) -> Result<Endpoint, String> {
+        let (scheme, rest) = s.split_once(':').ok_or_else(|| {
+            format!("MAVLink endpoint {s:?}: expected udpout:HOST:PORT, udpin:HOST:PORT, tcpout:HOST:PORT or serial:PATH:BAUD")
+        })?;
+        let host_port = |rest: &str| -> Result<String, String> {
+            let (host, port) = rest
+                .rsplit_once(':')
+                .ok_or_else(|| format!("MAVLink endpoint {s:?}: missing :PORT"))?;
+            if host.is_empty() {
+                return Err(format!("MAVLink endpoint {s:?}: missing host"));
+            }
+            port.parse::<u16>().map_err(|_| {
+                format!("MAVLink endpoint {s:?}: port {port:?} is not a number 0-65535")
+            })?;
+            Ok(rest.to_string())
+        };
+        match scheme {
+            "udpout" | "udp" => Ok(Endpoint::UdpOut(host_port(rest)?)),
+            "udpin" => Ok(Endpoint::UdpIn(host_port(rest)?)),
+            "tcpout" | "tcp" => Ok(Endpoint::TcpOut(host_port(rest)?)),
+            "serial" => {
+                let (path, baud) = rest
+                    .rsplit_once(':')
+                    .ok_or_else(|| format!("MAVLink endpoint {s:?}: expected serial:PATH:BAUD"))?;
+                let baud = baud.parse::<u32>().map_err(|_| {
+                    format!("MAVLink endpoint {s:?}: baud {baud:?} is not a number")
+                })?;
+                if path.is_empty() {
+                    return Err(format!("MAVLink endpoint {s:?}: missing device path"));
+                }
+                Ok(Endpoint::Serial {
+                    path: path.to_string(),
+                    baud,
+                })
+            }
+            other => Err(format!(
+                "MAVLink endpoint {s:?}: unknown scheme {other:?} (udpout, udpin, tcpout, serial)"
+            )),
+        }
+    }
+}
+
+/// Counters of one endpoint.
+#[derive(Debug, Default)]
+pub struct LinkStats {
+    pub sent: AtomicU64,
+    pub dropped: AtomicU64,
+    pub errors: AtomicU64,
+    pub connected: AtomicBool,
+    pub last_error: Mutex<Option<String>>,
+}
+
+impl LinkStats {
+    fn error(&self, e: impl std::fmt::Display) {
+        self.errors.fetch_add(1, Relaxed);
+        let msg = e.to_string();
+        if let Ok(mut l) = self.last_error.lock() {
+            if l.as_deref() != Some(msg.as_str()) {
+                tracing::warn!("MAVLink output: {msg}");
+            }
+            *l = Some(msg);
+        }
+    }
+}
+
+/// Counters of the MAVLink output as a whole.
+#[derive(Debug, Default)]
+pub struct MavlinkStats {
+    pub ticks: AtomicU64,
+    /// VISION_POSITION_ESTIMATEs handed to the links.
+    pub vpe_sent: AtomicU64,
+    pub heartbeats: AtomicU64,
+    /// Ticks with nothing sent because the estimate was invalid, stale or non-finite.
+    pub withheld: AtomicU64,
+    pub not_sending_reason: Mutex<Option<String>>,
+    pub last_sent_us: AtomicU64,
+    pub last_reset_counter: AtomicU64,
+    rate: Mutex<RateMeter>,
+    pub links: Vec<(String, Arc<LinkStats>)>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct LinkStatus {
+    pub endpoint: String,
+    pub sent: u64,
+    pub dropped: u64,
+    pub errors: u64,
+    pub connected: bool,
+    pub last_error: Option<String>,
+}
+
+impl MavlinkStats {
+    pub fn status_json(&self, now: i64, rate_hz: f64) -> serde_json::Value {
+        let last = self.last_sent_us.load(Relaxed) as i64;
+        let reason = self.not_sending_reason.lock().ok().and_then(|r| r.clone());
+        let links: Vec<LinkStatus> = self
+            .links
+            .iter()
+            .map(|(name, l)| LinkStatus {
+                endpoint: name.clone(),
+                sent: l.sent.load(Relaxed),
+                dropped: l.dropped.load(Relaxed),
+                errors: l.errors.load(Relaxed),
+                connected: l.connected.load(Relaxed),
+                last_error: l.last_error.lock().ok().and_then(|e| e.clone()),
+            })
+            .collect();
+        let sum = |f: fn(&LinkStatus) -> u64| links.iter().map(f).sum::<u64>();
+        serde_json::json!({
+            "name": "mavlink",
+            "kind": "mavlink",
+            "endpoint": self.links.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", "),
+            "configured_rate_hz": rate_hz,
+            "rate_hz": self.rate.lock().map(|r| r.rate_hz()).unwrap_or(0.0),
+            "sent": self.vpe_sent.load(Relaxed),
+            "heartbeats": self.heartbeats.load(Relaxed),
+            "withheld": self.withheld.load(Relaxed),
+            "dropped": sum(|l| l.dropped),
+            "errors": sum(|l| l.errors),
+            "last_error": links.iter().find_map(|l| l.last_error.clone()),
+            "last_sent_age_ms": (last > 0).then(|| (now - last) as f64 / 1e3),
+            "reset_counter": self.last_reset_counter.load(Relaxed),
+            "sending": reason.is_none() && last > 0,
+            "not_sending_reason": reason,
+            "links": links,
+        })
+    }
+}
+
+/// A frame to one endpoint; never waits.
+struct Link {
+    tx: mpsc::Sender<Arc<[u8]>>,
+    stats: Arc<LinkStats>,
+}
+
+impl Link {
+    fn offer(&self, frame: &Arc<[u8]>) {
+        if self.tx.try_send(frame.clone()).is_err() {
+            self.stats.dropped.fetch_add(1, Relaxed);
+        }
+    }
+}
+
+fn spawn_link(ep: Endpoint, stats: Arc<LinkStats>) -> Link {
+    let (tx, rx) = mpsc::channel(LINK_QUEUE);
+    let s = stats.clone();
+    tokio::spawn(async move {
+        match ep {
+            Endpoint::UdpOut(addr) => udp_out(addr, rx, s).await,
+            Endpoint::UdpIn(addr) => udp_in(addr, rx, s).await,
+            Endpoint::TcpOut(addr) => tcp_out(addr, rx, s).await,
+            Endpoint::Serial { path, baud } => serial(path, baud, rx, s).await,
+        }
+    });
+    Link { tx, stats }
+}
+
+/// Drain what arrived while the link could not send, counting it as dropped.
+fn drain_dropped(rx: &mut mpsc::Receiver<Arc<[u8]>>, stats: &LinkStats) {
+    while rx.try_recv().is_ok() {
+        stats.dropped.fetch_add(1, Relaxed);
+    }
+}
+
+/// Sleep for the back-off, dropping frames meanwhile; `false` when the output stopped.
+async fn back_off(
+    delay: &mut Duration,
+    rx: &mut mpsc::Receiver<Arc<[u8]>>,
+    stats: &LinkStats,
+) -> bool {
+    let until = tokio::time::Instant::now() + *delay;
+    *delay = (*delay * 2).min(BACKOFF_MAX);
+    loop {
+        tokio::select! {
+            _ = tokio::time::sleep_until(until) => return true,
+            f = rx.recv() => match f {
+                Some(_) => { stats.dropped.fetch_add(1, Relaxed); }
+                None => return false,
+            }
+        }
+    }
+}
+
+async fn resolve(addr: &str) -> std::io::Result<SocketAddr> {
+    tokio::net::lookup_host(addr)
+        .await?
+        .next()
+        .ok_or_else(|| std::io::Error::other(format!("{addr} resolves to nothing")))
+}
+
+async fn udp_out(addr: String, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+    let mut delay = BACKOFF_MIN;
+    loop {
+        let setup = async {
+            let to = resolve(&addr).await?;
+            let bind: SocketAddr = if to.is_ipv4() {
+                "0.0.0.0:0".parse().map_err(std::io::Error::other)?
+            } else {
+                "[::]:0".parse().map_err(std::io::Error::other)?
+            };
+            let sock = tokio::net::UdpSocket::bind(bind).await?;
+            Ok::<_, std::io::Error>((sock, to))
+        };
+        let (sock, to) = match setup.await {
+            Ok(x) => x,
+            Err(e) => {
+                stats.error(format!("udpout:{addr}: {e}"));
+                if !back_off(&mut delay, &mut rx, &stats).await {
+                    return;
+                }
+                continue;
+            }
+        };
+        stats.connected.store(true, Relaxed);
+        while let Some(f) = rx.recv().await {
+            match sock.send_to(&f, to).await {
+                Ok(_) => {
+                    stats.sent.fetch_add(1, Relaxed);
+                }
+                // ICMP port unreachable surfaces as a send error: nobody listens (yet).
+                Err(e) => stats.error(format!("udpout:{addr}: {e}")),
+            }
+        }
+        return;
+    }
+}
+
+async fn udp_in(addr: String, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+    let mut delay = BACKOFF_MIN;
+    let sock = loop {
+        match tokio::net::UdpSocket::bind(&addr).await {
+            Ok(s) => break s,
+            Err(e) => {
+                stats.error(format!("udpin:{addr}: cannot bind: {e}"));
+                if !back_off(&mut delay, &mut rx, &stats).await {
+                    return;
+                }
+            }
+        }
+    };
+    let mut peer: Option<SocketAddr> = None;
+    let mut buf = [0u8; 512];
+    loop {
+        tokio::select! {
+            r = sock.recv_from(&mut buf) => {
+                if let Ok((_, from)) = r {
+                    if peer != Some(from) {
+                        tracing::info!("MAVLink output udpin:{addr}: sending to {from}");
+                    }
+                    peer = Some(from);
+                    stats.connected.store(true, Relaxed);
+                }
+            }
+            f = rx.recv() => {
+                let Some(f) = f else { return };
+                match peer {
+                    Some(p) => match sock.send_to(&f, p).await {
+                        Ok(_) => { stats.sent.fetch_add(1, Relaxed); }
+                        Err(e) => stats.error(format!("udpin:{addr} to {p}: {e}")),
+                    },
+                    // Nobody has talked to us yet: there is no one to send to.
+                    None => { stats.dropped.fetch_add(1, Relaxed); }
+                }
+            }
+        }
+    }
+}
+
+async fn tcp_out(addr: String, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+    let mut delay = BACKOFF_MIN;
+    loop {
+        let connect = tokio::time::timeout(
+            Duration::from_secs(3),
+            tokio::net::TcpStream::connect(&addr),
+        )
+        .await;
+        let mut stream = match connect {
+            Ok(Ok(s)) => s,
+            Ok(Err(e)) => {
+                stats.error(format!("tcpout:{addr}: {e}"));
+                if !back_off(&mut delay, &mut rx, &stats).await {
+                    return;
+                }
+                continue;
+            }
+            Err(_) => {
+                stats.error(format!("tcpout:{addr}: connect timed out"));
+                if !back_off(&mut delay, &mut rx, &stats).await {
+                    return;
+                }
+                continue;
+            }
+        };
+        let _ = stream.set_nodelay(true);
+        tracing::info!("MAVLink output tcpout:{addr}: connected");
+        stats.connected.store(true, Relaxed);
+        delay = BACKOFF_MIN;
+        // Frames queued while disconnected are old: a pose must be fresh or not at all.
+        drain_dropped(&mut rx, &stats);
+        loop {
+            let Some(f) = rx.recv().await else { return };
+            if let Err(e) = stream.write_all(&f).await {
+                stats.error(format!("tcpout:{addr}: {e}"));
+                stats.connected.store(false, Relaxed);
+                break;
+            }
+            stats.sent.fetch_add(1, Relaxed);
+        }
+    }
+}
+
+async fn serial(path: String, baud: u32, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+    let mut delay = BACKOFF_MIN;
+    loop {
+        // `stty` sets the line raw at the baud rate (no termios crate needed).
+        let configured = tokio::process::Command::new("stty")
+            .args(["-F", &path, &baud.to_string(), "raw", "-echo"])
+            .output()
+            .await;
+        let opened = match configured {
+            Ok(o) if o.status.success() => tokio::fs::OpenOptions::new()
+                .write(true)
+                .open(&path)
+                .await
+                .map_err(|e| e.to_string()),
+            Ok(o) => Err(format!(
+                "stty failed: {}",
+                String::from_utf8_lossy(&o.stderr).trim()
+            )),
+            Err(e) => Err(format!("cannot run stty: {e}")),
+        };
+        let mut file = match opened {
+            Ok(f) => f,
+            Err(e) => {
+                stats.error(format!("serial:{path}:{baud}: {e}"));
+                if !back_off(&mut delay, &mut rx, &stats).await {
+                    return;
+                }
+                continue;
+            }
+        };
+        stats.connected.store(true, Relaxed);
+        delay = BACKOFF_MIN;
+        drain_dropped(&mut rx, &stats);
+        loop {
+            let Some(f) = rx.recv().await else { return };
+            if let Err(e) = file.write_all(&f).await {
+                stats.error(format!("serial:{path}: {e}"));
+                stats.connected.store(false, Relaxed);
+                break;
+            }
+            let _ = file.flush().await;
+            stats.sent.fetch_add(1, Relaxed);
+        }
+    }
+}
+
+/// Set up the endpoints' tasks; returns the stats the status API shows.
+pub fn build_stats(cfg: &MavlinkConfig) -> (Arc<MavlinkStats>, Vec<Endpoint>) {
+    let mut eps = Vec::new();
+    let mut links = Vec::new();
+    for s in &cfg.endpoints {
+        // Validated with the config; a bad one here is skipped, not fatal.
+        match Endpoint::parse(s) {
+            Ok(ep) => {
+                eps.push(ep);
+                links.push((s.clone(), Arc::new(LinkStats::default())));
+            }
+            Err(e) => tracing::error!("{e}"),
+        }
+    }
+    if cfg.zenoh_raw {
+        links.push((
+            "zenoh:mavlink_raw/in".into(),
+            Arc::new(LinkStats::default()),
+        ));
+    }
+    if cfg.zenoh_json {
+        links.push(("zenoh:mavlink/in".into(), Arc::new(LinkStats::default())));
+    }
+    (
+        Arc::new(MavlinkStats {
+            links,
+            ..MavlinkStats::default()
+        }),
+        eps,
+    )
+}
+
+/// Key of mavlink-server's raw input (`zenohraw://` endpoint).
+pub const ZENOH_RAW_IN: &str = "mavlink_raw/in";
+/// Key of mavlink-server's JSON input (`zenoh://` endpoint).
+pub const ZENOH_JSON_IN: &str = "mavlink/in";
+
+/// Run the output until `pose` closes.
+pub async fn run(
+    cfg: MavlinkConfig,
+    max_std_m: f64,
+    mut pose: PoseReceiver,
+    stats: Arc<MavlinkStats>,
+    endpoints: Vec<Endpoint>,
+    session: Option<zenoh::Session>,
+) {
+    let links: Vec<Link> = endpoints
+        .into_iter()
+        .zip(stats.links.iter())
+        .map(|(ep, (_, s))| spawn_link(ep, s.clone()))
+        .collect();
+    let zenoh_stats: Vec<Arc<LinkStats>> = stats
+        .links
+        .iter()
+        .filter(|(n, _)| n.starts_with("zenoh:"))
+        .map(|(_, s)| s.clone())
+        .collect();
+    let set = MessageSet {
+        vision_position_estimate: cfg.vision_position_estimate,
+        vision_speed_estimate: cfg.vision_speed_estimate,
+        odometry: cfg.odometry,
+    };
+    let period = Duration::from_secs_f64(1.0 / cfg.rate_hz);
+    let mut every = tokio::time::interval(period);
+    every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let max_age_us = (cfg.max_age_ms * 1e3) as i64;
+    let mut seq: u8 = 0;
+    let mut last_heartbeat: Option<i64> = None;
+    let mut last_sent_pose_us: Option<i64> = None;
+    tracing::info!(
+        endpoints = ?cfg.endpoints,
+        zenoh_raw = cfg.zenoh_raw,
+        zenoh_json = cfg.zenoh_json,
+        rate_hz = cfg.rate_hz,
+        "MAVLink output running as {}/{}",
+        cfg.system_id,
+        cfg.component_id
+    );
+    loop {
+        tokio::select! {
+            _ = every.tick() => {}
+            changed = pose.changed() => {
+                if changed.is_err() { break; }
+                continue;
+            }
+        }
+        stats.ticks.fetch_add(1, Relaxed);
+        let now = now_us();
+        let current = pose.borrow().clone();
+        let mut frames: Vec<mavlink::dialects::common::MavMessage> = Vec::new();
+        let valid_now = current.as_ref().is_some_and(|p| p.valid);
+        if cfg.heartbeat && last_heartbeat.is_none_or(|h| now - h >= HEARTBEAT_INTERVAL_US) {
+            last_heartbeat = Some(now);
+            frames.push(vpe::heartbeat(valid_now));
+            stats.heartbeats.fetch_add(1, Relaxed);
+        }
+        let outcome = match current.as_deref() {
+            None => Err("estimator not initialised".to_string()),
+            Some(p) if now - p.time_us > max_age_us => Err(format!(
+                "estimate stale: newest is {} ms old (limit {} ms)",
+                (now - p.time_us) / 1000,
+                cfg.max_age_ms
+            )),
+            // The same pose twice would tell the autopilot time stood still.
+            Some(p) if last_sent_pose_us == Some(p.time_us) => Ok(None),
+            Some(p) => match vpe::pose_messages(p, p.time_us.max(0) as u64, set, max_std_m) {
+                Ok(m) => Ok(Some((p.time_us, p.reset_counter, m))),
+                Err(VpeError::Invalid(why)) => Err(format!("estimate invalid: {why}")),
+                Err(e) => Err(format!("estimate rejected: {e}")),
+            },
+        };
+        match outcome {
+            Ok(Some((t, reset, msgs))) => {
+                last_sent_pose_us = Some(t);
+                stats.vpe_sent.fetch_add(1, Relaxed);
+                stats.last_sent_us.store(now.max(0) as u64, Relaxed);
+                stats.last_reset_counter.store(u64::from(reset), Relaxed);
+                if let Ok(mut r) = stats.rate.lock() {
+                    r.tick(now);
+                }
+                if let Ok(mut r) = stats.not_sending_reason.lock() {
+                    *r = None;
+                }
+                frames.extend(msgs);
+            }
+            Ok(None) => {}
+            Err(why) => {
+                stats.withheld.fetch_add(1, Relaxed);
+                if let Ok(mut r) = stats.not_sending_reason.lock() {
+                    if r.as_deref() != Some(why.as_str()) {
+                        tracing::warn!("MAVLink output: not sending: {why}");
+                    }
+                    *r = Some(why);
+                }
+            }
+        }
+        for msg in frames {
+            seq = seq.wrapping_add(1);
+            let header = MavHeader {
+                system_id: u32::from(cfg.system_id),
+                component_id: cfg.component_id,
+                sequence: seq,
+            };
+            match crate::codec::mavlink::encode_raw_v2(header, &msg) {
+                Ok(frame) => {
+                    let frame: Arc<[u8]> = frame.into();
+                    for l in &links {
+                        l.offer(&frame);
+                    }
+                    if let Some(s) = &session {
+                        publish_zenoh(s, &cfg, &zenoh_stats, header, &msg, &frame).await;
+                    }
+                }
+                Err(e) => tracing::error!("MAVLink output: cannot encode: {e}"),
+            }
+        }
+    }
+}
+
+async fn publish_zenoh(
+    session: &zenoh::Session,
+    cfg: &MavlinkConfig,
+    stats: &[Arc<LinkStats>],
+    header: MavHeader,
+    msg: &mavlink::dialects::common::MavMessage,
+    frame: &Arc<[u8]>,
+) {
+    let mut i = 0;
+    if cfg.zenoh_raw {
+        let s = &stats[i];
+        i += 1;
+        match session.put(ZENOH_RAW_IN, frame.to_vec()).await {
+            Ok(()) => {
+                s.sent.fetch_add(1, Relaxed);
+            }
+            Err(e) => s.error(format!("zenoh {ZENOH_RAW_IN}: {e}")),
+        }
+    }
+    if cfg.zenoh_json {
+        let s = &stats[i];
+        match crate::codec::mavlink::encode_json(header, msg) {
+            Ok(json) => match session.put(ZENOH_JSON_IN, json).await {
+                Ok(()) => {
+                    s.sent.fetch_add(1, Relaxed);
+                }
+                Err(e) => s.error(format!("zenoh {ZENOH_JSON_IN}: {e}")),
+            },
+            Err(e) => s.error(format!("zenoh {ZENOH_JSON_IN}: {e}")),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn endpoint_strings() {
+        assert_eq!(
+            Endpoint::parse("udpout:127.0.0.1:14540"),
+            Ok(Endpoint::UdpOut("127.0.0.1:14540".into()))
+        );
+        assert_eq!(
+            Endpoint::parse("udpin:0.0.0.0:14550"),
+            Ok(Endpoint::UdpIn("0.0.0.0:14550".into()))
+        );
+        assert_eq!(
+            Endpoint::parse("tcpout:px4.local:5760"),
+            Ok(Endpoint::TcpOut("px4.local:5760".into()))
+        );
+        assert_eq!(
+            Endpoint::parse("serial:/dev/ttyACM0:921600"),
+            Ok(Endpoint::Serial {
+                path: "/dev/ttyACM0".into(),
+                baud: 921_600
+            })
+        );
+        for bad in [
+            "udpout:1.2.3.4",
+            "udpout::14540",
+            "udpout:host:99999",
+            "ftp:host:1",
+            "serial:/dev/ttyS0:fast",
+            "nothing",
+        ] {
+            let e = Endpoint::parse(bad).expect_err(bad);
+            assert!(e.contains(bad), "{e}");
+        }
+    }
+
+    #[tokio::test]
+    async fn a_dead_tcp_endpoint_backs_off_and_counts_drops_without_blocking() {
+        // A port nobody listens on.
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .expect("port");
+        let stats = Arc::new(LinkStats::default());
+        let link = spawn_link(Endpoint::TcpOut(format!("127.0.0.1:{port}")), stats.clone());
+        let frame: Arc<[u8]> = vec![0xFDu8; 20].into();
+        let start = std::time::Instant::now();
+        for _ in 0..1000 {
+            link.offer(&frame);
+        }
+        // Offering never waits on the link.
+        assert!(start.elapsed() < Duration::from_millis(100));
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(stats.errors.load(Relaxed) >= 1);
+        assert!(stats.dropped.load(Relaxed) >= 1000 - LINK_QUEUE as u64);
+        assert_eq!(stats.sent.load(Relaxed), 0);
+        assert!(!stats.connected.load(Relaxed));
+    }
+}

@@ -1,0 +1,249 @@
+//! Zenoh out: the fused pose, health and events as JSON under `<prefix>/`, and the
+//! seed's ROS topics as ROS 2 CDR (zenoh-bridge-ros2dds turns them into ROS topics):
+//! `data_fusion/pose_msg` (geometry_msgs/PoseStamped) and the debug series as
+//! geometry_msgs/PointStamped, so the seed's rqt_plot commands work unchanged.
+
+use crate::codec::ros::{Header, Point, PointStamped, Pose, PoseStamped, Quaternion, RosMessage};
+use crate::config::OutputConfig;
+use crate::estimator::{DebugSeries, FusedPose};
+use crate::pipeline::{DebugReceiver, PoseReceiver};
+use serde_json::{json, Value};
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::broadcast;
+
+/// The seed's debug topics that are published (name under `ros2_debug_prefix`).
+pub const DEBUG_TOPICS: [&str; 8] = [
+    "compensated_OF",
+    "OF_sum",
+    "oriUAV_t265",
+    "oriUAV_gps",
+    "origin_dOF",
+    "origin_dt265",
+    "origin_dgps",
+    "fusion_displace",
+];
+const HEALTH_INTERVAL: Duration = Duration::from_secs(1);
+
+/// Counters for the status API.
+#[derive(Debug, Default)]
+pub struct ZenohOutStats {
+    pub poses: AtomicU64,
+    pub debug_points: AtomicU64,
+    pub events: AtomicU64,
+    pub health: AtomicU64,
+    pub errors: AtomicU64,
+    pub last_error: Mutex<Option<String>>,
+}
+
+impl ZenohOutStats {
+    fn error(&self, e: String) {
+        self.errors.fetch_add(1, Relaxed);
+        if let Ok(mut l) = self.last_error.lock() {
+            if l.as_deref() != Some(e.as_str()) {
+                tracing::warn!("Zenoh output: {e}");
+            }
+            *l = Some(e);
+        }
+    }
+
+    pub fn status_json(&self, cfg: &OutputConfig, prefix: &str) -> Value {
+        json!({
+            "name": "zenoh",
+            "kind": "zenoh",
+            "endpoint": format!("{prefix}/{{pose,health,events}}{}", if cfg.ros2 { format!(", {}", cfg.ros2_pose_key) } else { String::new() }),
+            "sent": self.poses.load(Relaxed),
+            "debug_points": self.debug_points.load(Relaxed),
+            "events": self.events.load(Relaxed),
+            "health": self.health.load(Relaxed),
+            "errors": self.errors.load(Relaxed),
+            "dropped": 0,
+            "last_error": self.last_error.lock().ok().and_then(|e| e.clone()),
+            "sending": true,
+            "not_sending_reason": null,
+        })
+    }
+}
+
+/// A ROS header stamped with a host time in µs.
+pub fn header(time_us: i64, frame_id: &str) -> Header {
+    Header {
+        stamp_sec: time_us.div_euclid(1_000_000) as i32,
+        stamp_nanosec: (time_us.rem_euclid(1_000_000) * 1000) as u32,
+        frame_id: frame_id.to_string(),
+        seq: 0,
+    }
+}
+
+/// geometry_msgs/PoseStamped of the fused pose (ENU, REP-103).
+pub fn pose_stamped(p: &FusedPose, frame_id: &str) -> PoseStamped {
+    let q = p.orientation;
+    PoseStamped {
+        header: header(p.time_us, frame_id),
+        pose: Pose {
+            position: Point {
+                x: p.position.x,
+                y: p.position.y,
+                z: p.position.z,
+            },
+            orientation: Quaternion {
+                x: q.i,
+                y: q.j,
+                z: q.k,
+                w: q.w,
+            },
+        },
+    }
+}
+
+/// The JSON pose (README "Outputs").
+pub fn pose_json(p: &FusedPose, frame_id: &str) -> Value {
+    let q = p.orientation;
+    let m = |m: &nalgebra::Matrix3<f64>| -> Vec<f64> { m.transpose().iter().copied().collect() };
+    json!({
+        "time_us": p.time_us,
+        "frame": frame_id,
+        "position": [p.position.x, p.position.y, p.position.z],
+        "orientation": [q.i, q.j, q.k, q.w],
+        "velocity": [p.velocity.x, p.velocity.y, p.velocity.z],
+        "position_covariance": m(&p.position_cov),
+        "velocity_covariance": m(&p.velocity_cov),
+        "orientation_covariance": m(&p.orientation_cov),
+        "sources": p.sources,
+        "reset_counter": p.reset_counter,
+        "valid": p.valid,
+        "invalid_reason": p.invalid_reason,
+        "origin": p.origin.map(|(lat, lon, alt)| json!({"lat": lat, "lon": lon, "alt": alt})),
+    })
+}
+
+/// Everything the Zenoh output publishes from.
+pub struct ZenohOutInputs {
+    pub pose: PoseReceiver,
+    pub debug: DebugReceiver,
+    pub events: broadcast::Receiver<Arc<Value>>,
+    /// Builds the health JSON (the status API's sensors and estimator).
+    pub health: Arc<dyn Fn() -> Value + Send + Sync>,
+}
+
+/// Run until the pose channel closes.
+pub async fn run(
+    session: zenoh::Session,
+    cfg: OutputConfig,
+    prefix: String,
+    mut inp: ZenohOutInputs,
+    stats: Arc<ZenohOutStats>,
+) {
+    let min_pose_interval_us = (1e6 / cfg.pose_rate_hz) as i64;
+    let mut last_pose_us: Option<i64> = None;
+    let mut sent_debug: BTreeMap<&'static str, i64> = BTreeMap::new();
+    let mut health = tokio::time::interval(HEALTH_INTERVAL);
+    health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let put = |key: String, payload: Vec<u8>| {
+        let session = session.clone();
+        let stats = stats.clone();
+        async move {
+            if let Err(e) = session
+                .put(&key, payload)
+                .congestion_control(zenoh::qos::CongestionControl::Drop)
+                .await
+            {
+                stats.error(format!("{key}: {e}"));
+                false
+            } else {
+                true
+            }
+        }
+    };
+    tracing::info!(prefix = %prefix, json = cfg.json, ros2 = cfg.ros2, pose_key = %cfg.ros2_pose_key, "Zenoh output running");
+    loop {
+        tokio::select! {
+            changed = inp.pose.changed() => {
+                if changed.is_err() { break; }
+                let Some(p) = inp.pose.borrow_and_update().clone() else { continue };
+                if last_pose_us.is_some_and(|l| p.time_us >= l && p.time_us - l < min_pose_interval_us) {
+                    continue;
+                }
+                last_pose_us = Some(p.time_us);
+                let mut ok = true;
+                if cfg.json {
+                    ok &= put(format!("{prefix}/pose"), pose_json(&p, &cfg.ros2_frame_id).to_string().into_bytes()).await;
+                }
+                // ROS consumers get only valid poses: rviz and planners cannot read a flag.
+                if cfg.ros2 && p.valid {
+                    ok &= put(cfg.ros2_pose_key.clone(), pose_stamped(&p, &cfg.ros2_frame_id).to_cdr()).await;
+                }
+                if ok {
+                    stats.poses.fetch_add(1, Relaxed);
+                }
+            }
+            changed = inp.debug.changed() => {
+                if changed.is_err() { break; }
+                if !(cfg.ros2 && cfg.ros2_debug) { continue; }
+                let d: Arc<DebugSeries> = inp.debug.borrow_and_update().clone();
+                for topic in DEBUG_TOPICS {
+                    let Some(pt) = d.series.get(topic) else { continue };
+                    if sent_debug.get(topic).is_some_and(|&t| t >= pt.time_us) { continue; }
+                    sent_debug.insert(topic, pt.time_us);
+                    let msg = PointStamped {
+                        header: header(pt.time_us, &cfg.ros2_frame_id),
+                        point: Point { x: pt.value[0], y: pt.value[1], z: pt.value[2] },
+                    };
+                    if put(format!("{}/{topic}", cfg.ros2_debug_prefix), msg.to_cdr()).await {
+                        stats.debug_points.fetch_add(1, Relaxed);
+                    }
+                }
+            }
+            ev = inp.events.recv() => match ev {
+                Ok(e) => {
+                    if cfg.json && put(format!("{prefix}/events"), e.to_string().into_bytes()).await {
+                        stats.events.fetch_add(1, Relaxed);
+                    }
+                }
+                Err(broadcast::error::RecvError::Lagged(n)) => stats.error(format!("{n} events skipped (output slower than events)")),
+                Err(broadcast::error::RecvError::Closed) => break,
+            },
+            _ = health.tick() => {
+                if cfg.json && put(format!("{prefix}/health"), (inp.health)().to_string().into_bytes()).await {
+                    stats.health.fetch_add(1, Relaxed);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+    #[test]
+    fn pose_stamped_round_trips_through_cdr() {
+        let p = FusedPose {
+            time_us: 1_700_000_000_123_456,
+            position: Vector3::new(1.0, -2.0, 3.5),
+            velocity: Vector3::zeros(),
+            orientation: UnitQuaternion::from_euler_angles(0.0, 0.0, 0.5),
+            angular_velocity: None,
+            position_cov: Matrix3::identity(),
+            velocity_cov: Matrix3::identity(),
+            orientation_cov: Matrix3::identity(),
+            sources: vec![],
+            reset_counter: 0,
+            valid: true,
+            invalid_reason: None,
+            origin: None,
+        };
+        let bytes = pose_stamped(&p, "map").to_cdr();
+        let back = PoseStamped::from_cdr(&bytes).expect("decodes");
+        assert_eq!(back.header.stamp_us(false), Some(1_700_000_000_123_456));
+        assert_eq!(back.header.frame_id, "map");
+        assert_eq!(back.pose.position.y, -2.0);
+        assert!((back.pose.orientation.z - (0.25f64).sin()).abs() < 1e-12);
+        let j = pose_json(&p, "map");
+        assert_eq!(j["position"][2], 3.5);
+        assert_eq!(j["valid"], true);
+    }
+}

@@ -1,0 +1,321 @@
+//! The estimator task: samples from ingest go through the (pure) estimator; the fused
+//! pose goes to the outputs through a `watch` channel (latest value wins, nobody waits),
+//! events and live series go to the websocket hub, and a status snapshot is kept for
+//! the HTTP API. Controls arrive as [`Command`]s.
+
+use crate::estimator::{DebugSeries, Estimator, EstimatorConfig, EstimatorEvent, FusedPose};
+use crate::fusion::{Fusion, InputList};
+use crate::health::HealthConfig;
+use crate::http::hub::{FrameKind, Hub};
+use crate::ingest::Ingest;
+use crate::sample::{Micros, Sample};
+use serde_json::{json, Value};
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, Mutex};
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
+
+/// Live series are sent to the hub at most this often (sample time), µs.
+const TICK_INTERVAL_US: i64 = 20_000;
+/// The estimator status snapshot is refreshed this often (sample time), µs.
+const STATUS_INTERVAL_US: i64 = 200_000;
+
+/// A state-changing request from the control API.
+#[derive(Debug)]
+pub enum Command {
+    ResetOrigin,
+    StartFlowCalibration,
+}
+
+/// What the estimator task shares with the rest of the service.
+pub struct PipelineShared {
+    pub hub: Arc<Hub>,
+    /// Latest estimator status (JSON of [`crate::estimator::EstimatorStatus`]).
+    pub status: Mutex<Value>,
+    /// Latest health verdict per sensor (see [`health_json`]).
+    pub health: Mutex<Value>,
+    pub consumed: AtomicU64,
+    pub events: AtomicU64,
+    /// Host time of service start: `t` in dashboard frames counts from here.
+    pub started_us: Micros,
+    /// Events for the outputs (a lagging receiver loses the oldest, counted there).
+    pub events_tx: broadcast::Sender<Arc<Value>>,
+}
+
+/// Events buffered for slow event consumers.
+const EVENT_BUFFER: usize = 256;
+
+impl PipelineShared {
+    pub fn new(hub: Arc<Hub>, started_us: Micros) -> Self {
+        Self {
+            hub,
+            status: Mutex::new(Value::Null),
+            health: Mutex::new(Value::Null),
+            consumed: AtomicU64::new(0),
+            events: AtomicU64::new(0),
+            started_us,
+            events_tx: broadcast::channel(EVENT_BUFFER).0,
+        }
+    }
+
+    pub fn status_json(&self) -> Value {
+        self.status.lock().map(|s| s.clone()).unwrap_or(Value::Null)
+    }
+
+    pub fn health_json(&self) -> Value {
+        self.health.lock().map(|s| s.clone()).unwrap_or(Value::Null)
+    }
+}
+
+pub type PoseSender = watch::Sender<Option<Arc<FusedPose>>>;
+pub type PoseReceiver = watch::Receiver<Option<Arc<FusedPose>>>;
+pub type DebugSender = watch::Sender<Arc<DebugSeries>>;
+pub type DebugReceiver = watch::Receiver<Arc<DebugSeries>>;
+pub type CommandSender = mpsc::Sender<(Command, oneshot::Sender<Vec<EstimatorEvent>>)>;
+pub type CommandReceiver = mpsc::Receiver<(Command, oneshot::Sender<Vec<EstimatorEvent>>)>;
+
+/// Builds the dashboard's `tick` frames from the estimator's debug series.
+#[derive(Default)]
+pub struct TickBuilder {
+    last_tick_us: Option<i64>,
+    /// Newest point already sent per (topic, source).
+    sent: BTreeMap<(&'static str, String), i64>,
+}
+
+/// Debug topics that hold an accumulated position per source, and their deltas.
+const POSITION_TOPICS: [&str; 3] = ["oriUAV_gps", "oriUAV_t265", "OF_sum"];
+const DELTA_TOPICS: [&str; 4] = [
+    "origin_dgps",
+    "origin_dt265",
+    "origin_dOF",
+    "fusion_displace",
+];
+
+impl TickBuilder {
+    /// A tick if one is due at estimator time `t`.
+    pub fn build(&mut self, est: &Estimator, t: i64, started_us: Micros) -> Option<Value> {
+        if let Some(last) = self.last_tick_us {
+            if t >= last && t - last < TICK_INTERVAL_US {
+                return None;
+            }
+        }
+        self.last_tick_us = Some(t);
+        let debug = &est.debug().series;
+        let mut fresh = |topic: &'static str| -> Option<(&str, [f64; 3])> {
+            let p = debug.get(topic)?;
+            let key = (topic, p.source.clone());
+            if self.sent.get(&key).is_some_and(|&s| s >= p.time_us) {
+                return None;
+            }
+            self.sent.insert(key, p.time_us);
+            Some((p.source.as_str(), p.value))
+        };
+        let mut sources = serde_json::Map::new();
+        for topic in POSITION_TOPICS {
+            if let Some((src, v)) = fresh(topic) {
+                sources.insert(src.to_string(), json!(v));
+            }
+        }
+        let mut deltas = serde_json::Map::new();
+        for topic in DELTA_TOPICS {
+            if let Some((src, v)) = fresh(topic) {
+                let name = if topic == "fusion_displace" {
+                    "fused"
+                } else {
+                    src
+                };
+                deltas.insert(name.to_string(), json!(v));
+            }
+        }
+        let flow = match (
+            fresh("OF_data"),
+            fresh("flow_gyro"),
+            fresh("compensated_OF"),
+        ) {
+            (Some((_, raw)), Some((_, gyro)), Some((_, comp))) => json!({
+                "raw": [raw[0], raw[1]],
+                "gyro": [gyro[0], gyro[1]],
+                "comp": [comp[0], comp[1]],
+            }),
+            _ => Value::Null,
+        };
+        let pose = est.pose().map(|p| pose_json(&p));
+        Some(json!({
+            "type": "tick",
+            "t": (t - started_us) as f64 / 1e6,
+            "pose": pose,
+            "sources": sources,
+            "deltas": deltas,
+            "flow": flow,
+        }))
+    }
+}
+
+fn round(v: f64, digits: i32) -> f64 {
+    let k = 10f64.powi(digits);
+    (v * k).round() / k
+}
+
+/// The pose as the dashboard shows it.
+pub fn pose_json(p: &FusedPose) -> Value {
+    let d = p.position_cov.diagonal();
+    json!({
+        "x": round(p.position.x, 4), "y": round(p.position.y, 4), "z": round(p.position.z, 4),
+        "yaw": round(p.orientation.euler_angles().2, 4),
+        "vx": round(p.velocity.x, 3), "vy": round(p.velocity.y, 3), "vz": round(p.velocity.z, 3),
+        "valid": p.valid,
+        "invalid_reason": p.invalid_reason,
+        "reset_counter": p.reset_counter,
+        "std": [round(d.x.sqrt(), 4), round(d.y.sqrt(), 4), round(d.z.sqrt(), 4)],
+        "sources": p.sources,
+    })
+}
+
+/// An estimator event as the hub and logs carry it.
+pub fn event_frame(e: &EstimatorEvent, started_us: Micros) -> Value {
+    json!({
+        "type": "event",
+        "event": {
+            "time_us": e.time_us,
+            "t": (e.time_us - started_us) as f64 / 1e6,
+            "kind": e.kind,
+            "source": e.source,
+            "message": e.message,
+            "data": e.data,
+        }
+    })
+}
+
+/// Everything the estimator task is built from.
+pub struct PipelineConfig {
+    pub estimator: EstimatorConfig,
+    pub health: HealthConfig,
+    pub inputs: InputList,
+}
+
+/// Health is re-checked this often without samples (staleness), ms.
+const HEALTH_TICK: std::time::Duration = std::time::Duration::from_millis(100);
+
+/// Run until the sample channel closes.
+pub async fn run(
+    mut samples: mpsc::Receiver<Sample>,
+    mut commands: CommandReceiver,
+    config: PipelineConfig,
+    ingest: Arc<Ingest>,
+    shared: Arc<PipelineShared>,
+    pose_tx: PoseSender,
+    debug_tx: DebugSender,
+) {
+    let mut fusion = Fusion::new(config.estimator, config.health, &config.inputs);
+    let mut ticks = TickBuilder::default();
+    let mut last_status_us: Option<i64> = None;
+    let mut last_pose_us: Option<i64> = None;
+    let mut rejected_seen: BTreeMap<String, u64> = BTreeMap::new();
+    let mut health_timer = tokio::time::interval(HEALTH_TICK);
+    health_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let started = shared.started_us;
+    loop {
+        tokio::select! {
+            s = samples.recv() => {
+                let Some(s) = s else { break };
+                shared.consumed.fetch_add(1, Relaxed);
+                let events = fusion.process(&s, s.arrival_us);
+                publish_events(&shared, &events);
+                let est = &fusion.est;
+                let Some(t) = est.state_time() else { continue };
+                if **debug_tx.borrow() != *est.debug() {
+                    debug_tx.send_replace(Arc::new(est.debug().clone()));
+                }
+                if let Some(p) = est.pose() {
+                    if last_pose_us != Some(p.time_us) {
+                        last_pose_us = Some(p.time_us);
+                        pose_tx.send_replace(Some(Arc::new(p)));
+                    }
+                }
+                if let Some(frame) = ticks.build(est, t, started) {
+                    shared.hub.publish(FrameKind::Tick, t, frame);
+                }
+                if last_status_us.is_none_or(|l| t < l || t - l >= STATUS_INTERVAL_US) {
+                    last_status_us = Some(t);
+                    refresh_status(&shared, &fusion);
+                }
+            }
+            _ = health_timer.tick() => {
+                let now = crate::ingest::now_us();
+                // Rejections at ingest count against the sensor's health too.
+                for st in ingest.statuses(now) {
+                    let seen = rejected_seen.entry(st.id.clone()).or_insert(0);
+                    if st.rejected > *seen {
+                        *seen = st.rejected;
+                        let text = st.last_error.clone().unwrap_or_else(|| "rejected".into());
+                        fusion.rejected(&st.id, "input_rejected", &text, now);
+                    }
+                }
+                let events = fusion.tick(now);
+                publish_events(&shared, &events);
+                if !events.is_empty() {
+                    refresh_status(&shared, &fusion);
+                }
+            }
+            Some((cmd, reply)) = commands.recv() => {
+                let now = fusion.est.state_time().unwrap_or_else(crate::ingest::now_us);
+                let events = match cmd {
+                    Command::ResetOrigin => fusion.est.reset_origin(now),
+                    Command::StartFlowCalibration => fusion.est.start_flow_calibration(now),
+                };
+                publish_events(&shared, &events);
+                refresh_status(&shared, &fusion);
+                let _ = reply.send(events);
+            }
+        }
+    }
+    refresh_status(&shared, &fusion);
+}
+
+/// Each sensor's health as the status API shows it.
+pub fn health_json(fusion: &Fusion, now: i64) -> Value {
+    let mut out = serde_json::Map::new();
+    let st = fusion.est.state_summary();
+    for h in fusion.health.sensors() {
+        let src = st.sources.get(&h.id);
+        out.insert(
+            h.id.clone(),
+            json!({
+                "state": h.state,
+                "reasons": h.reasons,
+                "since_ms": h.since_us.map(|s| (now - s) as f64 / 1e3),
+                "test_ratio": src.filter(|s| !s.innovation.is_empty()).map(|s| s.test_ratio),
+                "used": st.sources_used.contains(&h.id),
+                "usable": h.state.usable(),
+            }),
+        );
+    }
+    Value::Object(out)
+}
+
+fn refresh_status(shared: &PipelineShared, fusion: &Fusion) {
+    let v = serde_json::to_value(fusion.est.state_summary()).unwrap_or(Value::Null);
+    let h = health_json(fusion, crate::ingest::now_us());
+    if let Ok(mut s) = shared.status.lock() {
+        *s = v;
+    }
+    if let Ok(mut s) = shared.health.lock() {
+        *s = h;
+    }
+}
+
+fn publish_events(shared: &PipelineShared, events: &[EstimatorEvent]) {
+    for e in events {
+        shared.events.fetch_add(1, Relaxed);
+        tracing::info!(
+            kind = e.kind,
+            source = e.source.as_deref().unwrap_or("-"),
+            "{}",
+            e.message
+        );
+        let frame = event_frame(e, shared.started_us);
+        // No receiver is not an error: outputs may be off.
+        let _ = shared.events_tx.send(Arc::new(frame["event"].clone()));
+        shared.hub.publish(FrameKind::Event, e.time_us, frame);
+    }
+}

@@ -1,0 +1,2 @@
+//! Recorded flights as samples.
+pub mod px4csv;

@@ -1,0 +1,173 @@
+//! Named simulated flights for offline runs and tests: a flight profile, the streams
+//! that exist, and the faults injected on a schedule.
+
+use super::faults::{Fault, FaultKind};
+use super::sensors::{StreamSpec, DEMO_STREAMS};
+use super::truth::{Profile, LOOP_S};
+
+/// One named scenario.
+#[derive(Debug, Clone)]
+pub struct Scenario {
+    pub name: &'static str,
+    pub description: &'static str,
+    pub profile: Profile,
+    pub streams: Vec<StreamSpec>,
+    pub faults: Vec<Fault>,
+}
+
+/// Default length of a scenario: one loop of the flight, s.
+pub const DEFAULT_DURATION_S: f64 = LOOP_S;
+
+fn streams_without(ids: &[&str]) -> Vec<StreamSpec> {
+    DEMO_STREAMS
+        .iter()
+        .filter(|s| !ids.contains(&s.input_id))
+        .copied()
+        .collect()
+}
+
+fn fault(sensor: &str, kind: FaultKind, start_s: f64, end_s: f64) -> Fault {
+    Fault {
+        sensor: sensor.to_string(),
+        kind,
+        start_s,
+        end_s,
+    }
+}
+
+/// Every scenario: `(name, description)`.
+pub const NAMES: &[(&str, &str)] = &[
+    (
+        "demo",
+        "the demo flight: figure-eight with an indoor stretch (70-100 s) without GPS",
+    ),
+    (
+        "hover",
+        "take-off, hover at 2 m with yaw changes, landing; every sensor",
+    ),
+    ("figure8", "figure-eight outdoors; every sensor"),
+    (
+        "indoor",
+        "figure-eight indoors: no GPS; flow + ToF, T265, range, IMU",
+    ),
+    (
+        "outdoor",
+        "figure-eight outdoors: GPS + IMU + flow + range, no T265",
+    ),
+    ("gps-loss", "figure-eight; GPS has no fix from 40 to 70 s"),
+    (
+        "gps-jump",
+        "figure-eight; GPS multipath jump of 12 m from 50 to 60 s",
+    ),
+    (
+        "t265-drift",
+        "figure-eight; the T265 drifts away at 0.3 m/s from 40 to 60 s",
+    ),
+    (
+        "t265-covariance",
+        "figure-eight; T265 pose covariance at 0.01 (unusable) from 40 to 60 s",
+    ),
+    (
+        "t265-reset",
+        "figure-eight; the T265 loses tracking and restarts its frame at 50 s",
+    ),
+    (
+        "flow-dark-floor",
+        "indoor; flow over a dark floor (quality collapses) from 40 to 60 s",
+    ),
+    (
+        "tof-range",
+        "indoor; the flow module's ToF reads out of range from 40 to 50 s",
+    ),
+    (
+        "sensor-stop",
+        "figure-eight; the T265 stops sending from 40 to 55 s",
+    ),
+    ("sensor-nan", "figure-eight; GPS sends NaN from 40 to 50 s"),
+];
+
+/// Look up a scenario by name.
+pub fn scenario(name: &str) -> Option<Scenario> {
+    let (name, description) = NAMES.iter().find(|(n, _)| *n == name).copied()?;
+    let all = DEMO_STREAMS.to_vec();
+    let (profile, streams, faults) = match name {
+        "demo" => (Profile::Demo, all, vec![]),
+        "hover" => (Profile::Hover, all, vec![]),
+        "figure8" => (Profile::Figure8, all, vec![]),
+        "indoor" => (Profile::Indoor, streams_without(&["gps"]), vec![]),
+        "outdoor" => (Profile::Figure8, streams_without(&["t265"]), vec![]),
+        "gps-loss" => (
+            Profile::Figure8,
+            all,
+            vec![fault("gps", FaultKind::NoFix, 40.0, 70.0)],
+        ),
+        "gps-jump" => (
+            Profile::Figure8,
+            all,
+            vec![fault("gps", FaultKind::Jump, 50.0, 60.0)],
+        ),
+        "t265-drift" => (
+            Profile::Figure8,
+            all,
+            vec![fault("t265", FaultKind::Drift, 40.0, 60.0)],
+        ),
+        "t265-covariance" => (
+            Profile::Figure8,
+            all,
+            vec![fault("t265", FaultKind::Covariance, 40.0, 60.0)],
+        ),
+        "t265-reset" => (
+            Profile::Figure8,
+            all,
+            vec![fault("t265", FaultKind::Reset, 50.0, f64::INFINITY)],
+        ),
+        "flow-dark-floor" => (
+            Profile::Indoor,
+            streams_without(&["gps"]),
+            vec![fault("flow", FaultKind::DarkFloor, 40.0, 60.0)],
+        ),
+        "tof-range" => (
+            Profile::Indoor,
+            streams_without(&["gps"]),
+            vec![fault("flow", FaultKind::TofRange, 40.0, 50.0)],
+        ),
+        "sensor-stop" => (
+            Profile::Figure8,
+            all,
+            vec![fault("t265", FaultKind::Stop, 40.0, 55.0)],
+        ),
+        "sensor-nan" => (
+            Profile::Figure8,
+            all,
+            vec![fault("gps", FaultKind::Nan, 40.0, 50.0)],
+        ),
+        _ => return None,
+    };
+    Some(Scenario {
+        name,
+        description,
+        profile,
+        streams,
+        faults,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_listed_scenario_exists_and_unknown_does_not() {
+        for (n, _) in NAMES {
+            let s = scenario(n).expect("listed scenario");
+            assert_eq!(s.name, *n);
+            assert!(!s.streams.is_empty());
+        }
+        assert!(scenario("moon-landing").is_none());
+        assert!(scenario("indoor")
+            .expect("indoor")
+            .streams
+            .iter()
+            .all(|s| s.input_id != "gps"));
+    }
+}
