@@ -33,11 +33,18 @@ pub enum Command {
         config: Option<PathBuf>,
         #[command(flatten)]
         net: NetArgs,
+        /// MAVLink endpoint for VISION_POSITION_ESTIMATE (repeatable): udpout:HOST:PORT,
+        /// udpin:HOST:PORT, tcpout:HOST:PORT, serial:PATH:BAUD. Adds to the config's.
+        #[arg(long = "mavlink", value_name = "ADDR")]
+        mavlink: Vec<String>,
     },
     /// Run the service with the built-in simulator on loopback and open the dashboard.
     Demo {
         #[command(flatten)]
         net: NetArgs,
+        /// MAVLink endpoint for VISION_POSITION_ESTIMATE (repeatable), as for `run`.
+        #[arg(long = "mavlink", value_name = "ADDR")]
+        mavlink: Vec<String>,
         /// Simulator seed.
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -212,15 +219,21 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             }
             Ok(())
         }
-        Command::Run { config, net } => {
-            let c = load(config.as_deref(), &net)?;
+        Command::Run {
+            config,
+            net,
+            mavlink,
+        } => {
+            let mut c = load(config.as_deref(), &net)?;
+            add_mavlink(&mut c, &mavlink)?;
             serve(c, app::shutdown_signal()).await
         }
         Command::Demo {
             net,
+            mavlink,
             seed,
             no_browser,
-        } => demo(net, seed, no_browser).await,
+        } => demo(net, mavlink, seed, no_browser).await,
         Command::Sim { list: true, .. } => {
             for (name, description) in scenario::NAMES {
                 println!("  {name:<16} {description}");
@@ -315,7 +328,12 @@ async fn serve(
 /// The demo: the default config on loopback only (no multicast, Zenoh on a free port),
 /// plus the simulator in a second Zenoh session that connects to it, exactly as a
 /// vehicle's bridges would.
-async fn demo(net: NetArgs, seed: u64, no_browser: bool) -> Result<(), String> {
+async fn demo(
+    net: NetArgs,
+    mavlink: Vec<String>,
+    seed: u64,
+    no_browser: bool,
+) -> Result<(), String> {
     let mut c = Config::load(None, env_vars()).map_err(|e| e.to_string())?;
     // A free loopback port for the service's Zenoh endpoint (the sim connects to it).
     let zport = std::net::TcpListener::bind("127.0.0.1:0")
@@ -326,7 +344,9 @@ async fn demo(net: NetArgs, seed: u64, no_browser: bool) -> Result<(), String> {
     c.zenoh.connect.clear();
     c.zenoh.multicast_scouting = false;
     c.http.bind = "127.0.0.1:8080".into();
+    c.service.vehicle = "demo".into();
     net.apply(&mut c)?;
+    add_mavlink(&mut c, &mavlink)?;
 
     let http = tokio::net::TcpListener::bind(&c.http.bind)
         .await
@@ -419,6 +439,11 @@ fn open_browser(url: &str) {
     {
         tracing::info!("could not open a browser ({opener}: {e}); open {url} yourself");
     }
+}
+
+fn add_mavlink(c: &mut Config, endpoints: &[String]) -> Result<(), String> {
+    c.mavlink.endpoints.extend(endpoints.iter().cloned());
+    c.validate().map_err(|e| format!("command line: {e}"))
 }
 
 /// A 128-bit random token, hex.

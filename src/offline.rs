@@ -496,16 +496,11 @@ pub fn run_replay(
     progress: &mut dyn FnMut(f64),
 ) -> Result<Summary, OfflineError> {
     if let Some(list) = fuse {
+        // Exact source ids: `flow` is the first flow sensor, `flow_1` the second.
         let ids: std::collections::BTreeSet<&str> =
             samples.iter().map(|s| s.source.as_ref()).collect();
         for id in ids {
-            let kind_listed = samples
-                .iter()
-                .find(|s| s.source.as_ref() == id)
-                .map(|s| s.data.kind())
-                .is_some_and(|k| list.iter().any(|l| l == k.as_str()));
-            let fused = list.iter().any(|l| l == id) || kind_listed;
-            cfg.sources.entry(id.to_string()).or_default().fuse = fused;
+            cfg.sources.entry(id.to_string()).or_default().fuse = list.iter().any(|l| l == id);
         }
     }
     let mode = cfg.mode;

@@ -109,9 +109,9 @@ pub const DEFAULT_GNSS_VEL_NOISE: f64 = 0.1;
 pub const DEFAULT_GNSS_FUSE_VELOCITY: bool = true;
 /// GNSS slowly varying error (multipath, atmosphere): horizontal 1σ, m, modelled as a
 /// Gauss–Markov state; this part is taken out of the message's variance.
-pub const DEFAULT_GNSS_BIAS_STD_M: f64 = 0.3;
+pub const DEFAULT_GNSS_BIAS_STD_M: f64 = 1.0;
 /// The same, vertical, m.
-pub const DEFAULT_GNSS_BIAS_STD_V_M: f64 = 0.45;
+pub const DEFAULT_GNSS_BIAS_STD_V_M: f64 = 3.0;
 /// Correlation time of that error, s.
 pub const DEFAULT_GNSS_BIAS_TAU_S: f64 = 30.0;
 
@@ -129,8 +129,9 @@ pub const DEFAULT_VO_FUSE_VELOCITY: bool = true;
 
 /// Flow: minimum quality (0..255) for use.
 pub const DEFAULT_FLOW_MIN_QUALITY: u8 = 50;
-/// Flow angular rate noise 1σ, rad/s.
-pub const DEFAULT_FLOW_RATE_NOISE: f64 = 0.03;
+/// Flow angular rate noise 1σ, rad/s (PX4 EKF2_OF_N_MIN; a real flight needed it:
+/// 0.03 rejected a real PX4 flow sensor's data half the time).
+pub const DEFAULT_FLOW_RATE_NOISE: f64 = 0.15;
 /// Flow: largest usable raw rate, rad/s.
 pub const DEFAULT_FLOW_MAX_RATE: f64 = 4.0;
 /// Gyro low-pass for rotation compensation, Hz (seed 001: LPF_1_(3.0, ...)).

@@ -7,10 +7,11 @@
 //!
 //! | file                          | source     | sample                                   |
 //! |-------------------------------|------------|------------------------------------------|
-//! | `estimator_states_<i>`        | `attitude` | [`Attitude`] from states\[0..4\] (EKF2 quaternion) |
+//! | `estimator_states_<i>`        | `attitude_states` | [`Attitude`] from states\[0..4\] (EKF2 quaternion, 1 Hz) |
+//! | `vehicle_local_position_0` heading | `attitude` | [`Attitude`], yaw only (10 Hz stand-in) |
 //! | `vehicle_imu_<i>`             | `imu`      | [`Imu`] from delta angle/velocity ÷ dt   |
 //! | `distance_sensor_<i>`         | `range`    | [`Range`]                                |
-//! | `optical_flow_<i>`            | `flow`     | [`OpticalFlow`]                          |
+//! | `optical_flow_<i>`            | `flow`     | [`OpticalFlow`]; gyro from `estimator_optical_flow_vel` |
 //! | `vehicle_visual_odometry_<i>` | `vio`      | [`Odometry`]                             |
 //! | `vehicle_local_position_<i>`  | `ekf2`     | [`AutopilotEstimate`]                    |
 //!
@@ -152,8 +153,92 @@ pub fn read_dir_with_progress(
     }
     // Stable: equal stamps keep file order (the TOPICS order, then instance).
     samples.sort_by_key(|s| s.stamp_us);
+    attach_ekf2_flow_gyro(dir, &mut samples);
+    attitude_from_ekf2_heading(&mut samples);
     (prog.cb)(prog.total, prog.total);
     Ok(Px4CsvLog { samples, topics })
+}
+
+/// The export's attitude (`estimator_states`) is logged at 1 Hz only; a companion
+/// computer would get ATTITUDE at tens of Hz. EKF2's heading (`vehicle_local_position`,
+/// 10 Hz) stands in for it as source `attitude`: yaw only, level (the flight is gentle;
+/// the 1 Hz quaternion stays available as `attitude_states`).
+fn attitude_from_ekf2_heading(samples: &mut Vec<Sample>) {
+    let mut extra = Vec::new();
+    for s in samples.iter_mut() {
+        match &s.data {
+            SensorData::AutopilotEstimate(a) if s.source.as_ref() == "ekf2" => {
+                if let Some(yaw) = a.yaw.filter(|y| y.is_finite()) {
+                    extra.push(Sample {
+                        source: "attitude".into(),
+                        stamp_us: s.stamp_us,
+                        arrival_us: s.arrival_us,
+                        data: SensorData::Attitude(crate::sample::Attitude {
+                            orientation: UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+                            rates: None,
+                        }),
+                    });
+                }
+            }
+            _ => {}
+        }
+    }
+    samples.extend(extra);
+    samples.sort_by_key(|s| s.stamp_us);
+}
+
+/// Flow modules without a gyro (NaN in `optical_flow`) leave rotation compensation to
+/// the autopilot's IMU. The export has no high-rate IMU, but EKF2 logged the gyro
+/// integral it used over each flow interval (`estimator_optical_flow_vel`,
+/// `gyro_rate_integral`, FRD, with the opposite sign to the body rate — checked against
+/// the VIO's rates). Attach it to the `flow` samples it belongs to (same sample time
+/// within 5 ms), as OPTICAL_FLOW_RAD's integrated gyro would carry it. Best effort: a
+/// missing or unreadable file changes nothing.
+fn attach_ekf2_flow_gyro(dir: &Path, samples: &mut [Sample]) {
+    let Ok(text) = std::fs::read_to_string(dir.join("estimator_optical_flow_vel_0.csv")) else {
+        return;
+    };
+    let mut lines = text.lines();
+    let Some(header) = lines.next() else { return };
+    let cols: Vec<&str> = header.split(',').collect();
+    let find = |n: &str| cols.iter().position(|c| *c == n);
+    let (Some(ts), Some(g0), Some(g1), Some(g2)) = (
+        find("timestamp_sample"),
+        find("gyro_rate_integral[0]"),
+        find("gyro_rate_integral[1]"),
+        find("gyro_rate_integral[2]"),
+    ) else {
+        return;
+    };
+    let mut rows: Vec<(i64, Vector3<f64>)> = lines
+        .filter_map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            let num = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok());
+            let t = f.get(ts)?.parse::<i64>().ok()?;
+            let g = Vector3::new(num(g0)?, num(g1)?, num(g2)?);
+            g.iter().all(|v| v.is_finite()).then_some((t, g))
+        })
+        .collect();
+    rows.sort_by_key(|r| r.0);
+    for s in samples.iter_mut().filter(|s| s.source.as_ref() == "flow") {
+        let (Some(t), SensorData::Flow(f)) = (s.stamp_us, &mut s.data) else {
+            continue;
+        };
+        let (Some(dt), None) = (f.integration_s, f.gyro) else {
+            continue;
+        };
+        let i = rows.partition_point(|r| r.0 < t);
+        let best = [i.checked_sub(1), Some(i)]
+            .into_iter()
+            .flatten()
+            .filter_map(|j| rows.get(j))
+            .min_by_key(|r| (r.0 - t).abs());
+        if let Some((rt, g)) = best {
+            if (rt - t).abs() <= 5_000 {
+                f.gyro = Some(frames::frd_to_flu(-g / dt));
+            }
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -168,7 +253,7 @@ enum Kind {
 
 /// File prefix, source name, kind; the order is also the tie order of equal stamps.
 const TOPICS: [(&str, &str, Kind); 6] = [
-    ("estimator_states", "attitude", Kind::Attitude),
+    ("estimator_states", "attitude_states", Kind::Attitude),
     ("vehicle_imu", "imu", Kind::Imu),
     ("distance_sensor", "range", Kind::Range),
     ("optical_flow", "flow", Kind::Flow),
@@ -953,7 +1038,7 @@ mod tests {
         let want = BTreeMap::from([
             ("distance_sensor_0", ("range", 14982, 0)),
             ("distance_sensor_1", ("range_1", 11849, 0)),
-            ("estimator_states_0", ("attitude", 308, 0)),
+            ("estimator_states_0", ("attitude_states", 308, 0)),
             ("optical_flow_0", ("flow", 17666, 0)),
             ("optical_flow_1", ("flow_1", 14438, 0)),
             ("vehicle_imu_0", ("imu", 615, 0)),
@@ -963,8 +1048,9 @@ mod tests {
         ]);
         assert_eq!(got, want);
         let total: usize = log.topics.iter().map(TopicSummary::samples).sum();
-        assert_eq!(log.samples.len(), total);
         assert_eq!(total, 72528);
+        // Plus one `attitude` per EKF2 heading (vehicle_local_position rows).
+        assert_eq!(log.samples.len(), total + 3077);
     }
 
     #[test]
@@ -1154,7 +1240,7 @@ mod tests {
     #[test]
     fn attitude_and_ekf2_heading_agree() {
         let log = real();
-        let s = first_of(log, "attitude");
+        let s = first_of(log, "attitude_states");
         assert_eq!(s.stamp_us, Some(1_692_866));
         let SensorData::Attitude(a) = &s.data else {
             panic!("not attitude")
@@ -1176,6 +1262,12 @@ mod tests {
         assert!(close(yaw, frames::yaw_ned_to_enu(0.27689523), 1e-9));
         // EKF2's quaternion and its heading name the same yaw (0.277 rad NED).
         assert!(close(a.orientation.euler_angles().2, yaw, 0.01), "{yaw}");
+        // The 10 Hz `attitude` stand-in is that heading, level.
+        let SensorData::Attitude(h) = &first_of(log, "attitude").data else {
+            panic!("not attitude")
+        };
+        assert!(close(h.orientation.euler_angles().2, yaw, 1e-9));
+        assert!(h.orientation.euler_angles().0.abs() < 1e-12);
     }
 
     #[test]

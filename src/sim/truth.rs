@@ -67,17 +67,25 @@ fn position_at(profile: Profile, t_loop: f64) -> Vector3<f64> {
         * (1.0 - smoothstep5((t - T_LANDING) / (T_LANDED - T_LANDING)));
     let w = 2.0 * PI / EIGHT_PERIOD;
     let tau = (t - T_CRUISE).max(0.0);
-    let e = if profile == Profile::Hover {
-        0.0
-    } else {
-        envelope(t)
-    };
+    if profile == Profile::Hover {
+        // Position hold wanders a little (wind, controller): ±0.3 m, slowly.
+        let e = envelope(t);
+        return Vector3::new(
+            e * HOVER_WANDER_M * (2.0 * PI * tau / 23.0).sin(),
+            e * HOVER_WANDER_M * (2.0 * PI * tau / 17.0).sin(),
+            z,
+        );
+    }
+    let e = envelope(t);
     Vector3::new(
         e * EIGHT_A * (w * tau).sin(),
         e * EIGHT_A * 0.5 * (2.0 * w * tau).sin(),
         z,
     )
 }
+
+/// Amplitude of the hover's wander, m.
+const HOVER_WANDER_M: f64 = 0.3;
 
 fn yaw_at(t: f64) -> f64 {
     0.4 + 0.5 * (2.0 * PI * t / 45.0).sin() * envelope(t)

@@ -58,6 +58,8 @@ pub struct Service {
     pub http_port: u16,
     pub zenoh_port: u16,
     pub log: PathBuf,
+    /// The controls token the service was started with (SKYFUSE__HTTP__TOKEN).
+    pub token: String,
 }
 
 impl Service {
@@ -67,6 +69,7 @@ impl Service {
         let http_port = free_port();
         let zenoh_port = free_port();
         let log = std::env::temp_dir().join(format!("skyfuse-test-{http_port}.log"));
+        let token = format!("test-token-{http_port}");
         let logf = std::fs::File::create(&log).expect("log file");
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_skyfuse"));
         cmd.args(args)
@@ -78,6 +81,7 @@ impl Service {
                 &format!("127.0.0.1:{http_port}"),
             ])
             .env("RUST_LOG", "info,zenoh=warn")
+            .env("SKYFUSE__HTTP__TOKEN", &token)
             .stdin(Stdio::null())
             .stdout(logf.try_clone().expect("log"))
             .stderr(logf);
@@ -90,6 +94,7 @@ impl Service {
             http_port,
             zenoh_port,
             log,
+            token,
         };
         s.wait_healthy(Duration::from_secs(30));
         s
@@ -170,11 +175,35 @@ impl Drop for Service {
 
 /// Minimal HTTP/1.1 GET on loopback: (status code, body).
 pub fn http_get(port: u16, path: &str) -> std::io::Result<(u16, String)> {
+    request(port, "GET", path, "", None)
+}
+
+/// POST a JSON body, with `Authorization: Bearer <token>` if given.
+pub fn http_post(
+    port: u16,
+    path: &str,
+    body: &str,
+    token: Option<&str>,
+) -> std::io::Result<(u16, String)> {
+    request(port, "POST", path, body, token)
+}
+
+fn request(
+    port: u16,
+    method: &str,
+    path: &str,
+    body: &str,
+    token: Option<&str>,
+) -> std::io::Result<(u16, String)> {
     let mut s = TcpStream::connect(("127.0.0.1", port))?;
-    s.set_read_timeout(Some(Duration::from_secs(5)))?;
+    s.set_read_timeout(Some(Duration::from_secs(10)))?;
+    let auth = token
+        .map(|t| format!("Authorization: Bearer {t}\r\n"))
+        .unwrap_or_default();
     write!(
         s,
-        "GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
+        "{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n{auth}Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
     )?;
     let mut buf = Vec::new();
     s.read_to_end(&mut buf)?;

@@ -139,7 +139,7 @@ def expected_sample(name, f, ext):
                 "rates": vec(B_FRD_FLU @ [f["rollspeed"], f["pitchspeed"], f["yawspeed"]])}
     if name == "OPTICAL_FLOW":
         return {"kind": "flow", "stamp_us": f["time_usec"],
-                "rate": [f["flow_rate_x"], f["flow_rate_y"]] if ext else None,
+                "rate": [f["flow_rate_x"], -f["flow_rate_y"]] if ext else None,  # FRD -> FLU
                 "gyro": None, "velocity": [f["flow_comp_m_x"], -f["flow_comp_m_y"]],
                 "integration_s": None, "quality": f["quality"],
                 "tof_m": f["ground_distance"] if f["ground_distance"] > 0 else None}
@@ -147,7 +147,7 @@ def expected_sample(name, f, ext):
         dt = f["integration_time_us"] * 1e-6
         g = [f["integrated_xgyro"], f["integrated_ygyro"], f["integrated_zgyro"]]
         return {"kind": "flow", "stamp_us": f["time_usec"],
-                "rate": [f["integrated_x"] / dt, f["integrated_y"] / dt],
+                "rate": [f["integrated_x"] / dt, -f["integrated_y"] / dt],  # FRD -> FLU
                 "gyro": vec(B_FRD_FLU @ (np.array(g) / dt)) if all(map(math.isfinite, g)) else None,
                 "velocity": None, "integration_s": dt, "quality": f["quality"],
                 "tof_m": f["distance"] if f["distance"] > 0 else None}

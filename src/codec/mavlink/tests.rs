@@ -99,7 +99,8 @@ fn golden_optical_flow() {
         panic!()
     };
     assert_eq!(f.velocity, Some(Vector2::new(0.375, 0.625)));
-    assert_eq!(f.rate, Some(Vector2::new(0.0625, -0.125)));
+    // PX4's FRD y becomes FLU's: the sign changes.
+    assert_eq!(f.rate, Some(Vector2::new(0.0625, 0.125)));
     assert_eq!(f.quality, 200);
     assert_eq!(f.tof.map(|t| t.distance_m), Some(1.25));
     assert_eq!(f.gyro, None);
@@ -113,7 +114,7 @@ fn golden_optical_flow_rad() {
     };
     let dt = 20000.0 * 1e-6;
     assert_eq!(f.integration_s, Some(dt));
-    assert_eq!(f.rate, Some(Vector2::new(0.015625 / dt, -0.03125 / dt)));
+    assert_eq!(f.rate, Some(Vector2::new(0.015625 / dt, 0.03125 / dt)));
     let g = f.gyro.unwrap();
     assert_close(g.x, 0.0078125 / 0.02, "gx");
     assert_close(g.y, 0.00390625 / 0.02, "gy");

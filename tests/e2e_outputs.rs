@@ -1,0 +1,200 @@
+//! End to end: `skyfuse demo` (the service fed by its simulator over Zenoh) with a
+//! MAVLink UDP endpoint. What arrives is decoded by pymavlink; the Zenoh pose is read by
+//! Python eclipse-zenoh and its CDR by rosbags; both are checked against the flight the
+//! simulator flies and against the status API.
+
+mod common;
+use common::*;
+use std::time::Duration;
+
+fn json(text: &str) -> serde_json::Value {
+    serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
+}
+
+fn f(v: &serde_json::Value) -> f64 {
+    v.as_f64().unwrap_or(f64::NAN)
+}
+
+#[test]
+fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
+    let udp = free_port();
+    let svc = Service::start(
+        &[
+            "demo",
+            "--no-browser",
+            "--mavlink",
+            &format!("udpout:127.0.0.1:{udp}"),
+        ],
+        &[],
+    );
+    // The listener starts right away: it sees take-off (4–10 s, to 2 m) and the first
+    // leg of the figure-eight (from 10 s: east and north both grow).
+    let out = json(&run_py(
+        "mavlink_listen.py",
+        &["--port", &udp.to_string(), "--seconds", "17"],
+    ));
+    let vpe = out["vpe"].as_array().expect("vpe list");
+    let hb = out["heartbeat"].as_array().expect("heartbeats");
+    assert_eq!(out["bad_data"], 0, "undecodable frames: {out}");
+    assert!(
+        vpe.len() > 100,
+        "only {} VPE: {}",
+        vpe.len(),
+        svc.log_text()
+    );
+
+    // Rate: 30 Hz ± 10 % over the steady part (after the first seconds).
+    let steady: Vec<&serde_json::Value> = vpe.iter().filter(|v| f(&v["rx"]) > 6.0).collect();
+    let span = f(&steady[steady.len() - 1]["rx"]) - f(&steady[0]["rx"]);
+    let rate = (steady.len() - 1) as f64 / span;
+    assert!((27.0..=33.0).contains(&rate), "VPE rate {rate:.1} Hz");
+
+    for v in vpe {
+        assert_eq!(v["finite"], true, "non-finite VPE {v}");
+        assert_eq!(v["mavlink2"], true, "not MAVLink 2: {v}");
+        assert_eq!(
+            (v["sys"].as_u64(), v["comp"].as_u64()),
+            (Some(1), Some(197))
+        );
+        // Covariance: the upper triangle's diagonal entries (0, 6, 11) are variances.
+        for i in [0, 6, 11, 15, 18, 20] {
+            assert!(f(&v["covariance"][i]) > 0.0, "variance {i} of {v}");
+        }
+    }
+    // Timestamps move forward with the samples.
+    for w in vpe.windows(2) {
+        assert!(
+            w[1]["usec"].as_u64() > w[0]["usec"].as_u64(),
+            "{} then {}",
+            w[0],
+            w[1]
+        );
+    }
+
+    // Signs: at cruise height NED z ≈ −2 m; on the first leg north (x) and east (y) grow.
+    let at = |t: f64| {
+        vpe.iter()
+            .min_by(|a, b| (f(&a["rx"]) - t).abs().total_cmp(&(f(&b["rx"]) - t).abs()))
+            .expect("a VPE")
+    };
+    let (a, b) = (at(11.0), at(16.5));
+    assert!((f(&b["z"]) + 2.0).abs() < 0.4, "z at cruise {}", b["z"]);
+    assert!(
+        f(&b["y"]) - f(&a["y"]) > 1.0,
+        "east did not grow: {a} -> {b}"
+    );
+    assert!(
+        f(&b["x"]) - f(&a["x"]) > 0.5,
+        "north did not grow: {a} -> {b}"
+    );
+
+    // HEARTBEAT at 1 Hz from component 197, an onboard controller.
+    assert!(
+        (14..=19).contains(&hb.len()),
+        "{} heartbeats in 17 s",
+        hb.len()
+    );
+    for h in hb {
+        assert_eq!(h["comp"], 197);
+        assert_eq!(h["type"], 18, "MAV_TYPE_ONBOARD_CONTROLLER");
+    }
+
+    // The reset counter is the estimator's; the status shows the output's counters.
+    let status = svc.get_json("/api/v1/status");
+    let last = vpe.last().expect("vpe");
+    assert_eq!(last["reset_counter"], status["estimator"]["reset_counter"]);
+    let mav = &status["outputs"][0];
+    assert_eq!(mav["kind"], "mavlink");
+    assert!(mav["sent"].as_u64().unwrap_or(0) >= vpe.len() as u64);
+    assert_eq!(mav["sending"], true, "{mav}");
+
+    // Zenoh: the JSON pose and the CDR PoseStamped (decoded by rosbags) agree.
+    let z = json(&run_py(
+        "zenoh_pose_listen.py",
+        &[
+            "--connect",
+            &svc.zenoh_endpoint(),
+            "--seconds",
+            "3",
+            "--prefix",
+            "skyfuse/demo",
+        ],
+    ));
+    assert!(z["json"].as_u64().unwrap_or(0) > 50, "{z}");
+    assert!(z["cdr"].as_u64().unwrap_or(0) > 50, "{z}");
+    assert!(z["health"].as_u64().unwrap_or(0) >= 2, "{z}");
+    assert!(z["matched"].as_u64().unwrap_or(0) > 20, "{z}");
+    assert!(f(&z["max_position_diff"]) < 1e-9, "{z}");
+    assert_eq!(z["last_cdr"]["frame_id"], "map");
+    assert_eq!(z["errors"].as_array().map(Vec::len), Some(0), "{z}");
+    // ENU JSON and NED VPE describe the same vehicle: up is positive here.
+    assert!(f(&z["last_json"]["position"][2]) > 1.5, "{z}");
+}
+
+#[test]
+fn no_position_source_means_no_vision_position_estimate() {
+    let udp = free_port();
+    let svc = Service::start(
+        &[
+            "demo",
+            "--no-browser",
+            "--mavlink",
+            &format!("udpout:127.0.0.1:{udp}"),
+        ],
+        &[],
+    );
+    // Wait for a valid estimate, then take every position and velocity source away.
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
+    let token_env = svc.token.clone();
+    let post = |sensor: &str, fault: &str| {
+        let body = format!(r#"{{"sensor":"{sensor}","fault":"{fault}","duration_s":4}}"#);
+        let (code, text) = http_post(
+            svc.http_port,
+            "/api/v1/control/fault",
+            &body,
+            Some(&token_env),
+        )
+        .expect("POST");
+        assert_eq!(code, 200, "{text}");
+    };
+    let before = svc.get_json("/api/v1/status")["estimator"]["reset_counter"].clone();
+    let listener = std::thread::spawn(move || {
+        run_py(
+            "mavlink_listen.py",
+            &["--port", &udp.to_string(), "--seconds", "16"],
+        )
+    });
+    std::thread::sleep(Duration::from_secs(2));
+    for s in ["gps", "t265", "flow", "rangefinder"] {
+        post(s, "stop");
+    }
+    let out = json(&listener.join().expect("listener"));
+    let vpe = out["vpe"].as_array().expect("vpe");
+    // Arrival gaps: one long gap while nothing could be trusted, VPE before and after.
+    let gaps: Vec<(f64, f64)> = vpe
+        .windows(2)
+        .map(|w| (f(&w[0]["rx"]), f(&w[1]["rx"]) - f(&w[0]["rx"])))
+        .filter(|(_, g)| *g > 0.5)
+        .collect();
+    assert_eq!(gaps.len(), 1, "gaps {gaps:?}");
+    let (at, gap) = gaps[0];
+    assert!((2.0..4.5).contains(&at), "gap started at {at}");
+    assert!(gap > 2.0, "gap {gap}");
+    assert!(
+        vpe.iter().any(|v| f(&v["rx"]) > at + gap + 1.0),
+        "VPE did not resume"
+    );
+    let status = svc.get_json("/api/v1/status");
+    let mav = &status["outputs"][0];
+    assert!(mav["withheld"].as_u64().unwrap_or(0) > 30, "{mav}");
+    // Coming back after the gap is a discontinuity the autopilot must be told of.
+    let after = vpe
+        .last()
+        .map(|v| v["reset_counter"].clone())
+        .unwrap_or_default();
+    assert_ne!(after, before, "reset counter did not move");
+    assert!(
+        svc.log_text().contains("not sending: estimate invalid"),
+        "no reason logged"
+    );
+}
