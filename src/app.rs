@@ -166,6 +166,9 @@ impl AppState {
     }
 }
 
+/// Kernel send buffer of each HTTP/websocket connection, bytes (Linux doubles it).
+const HTTP_SEND_BUFFER: usize = 32 * 1024;
+
 /// Publishes the status to websocket clients while the service runs.
 const STATUS_FRAME_INTERVAL: Duration = Duration::from_millis(500);
 
@@ -274,7 +277,14 @@ pub async fn run_with(
         "skyfuse running"
     );
     let app = crate::http::router(state.clone());
-    axum::serve(listeners.http, app)
+    // A small kernel send buffer per connection: a stalled browser then fills its own
+    // bounded queue (and drops, counted) within seconds instead of hiding megabytes
+    // of stale frames in the kernel.
+    let http = axum::serve::ListenerExt::tap_io(listeners.http, |tcp| {
+        let _ = tcp.set_nodelay(true);
+        let _ = socket2::SockRef::from(&*tcp).set_send_buffer_size(HTTP_SEND_BUFFER);
+    });
+    axum::serve(http, app)
         .with_graceful_shutdown(shutdown)
         .await
         .map_err(RunError::Http)?;

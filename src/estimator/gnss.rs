@@ -137,10 +137,51 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         }
         return;
     }
+    // Control: after a spell without any position source the estimate has drifted by an
+    // unknown amount; the first fix resets the position to it (PX4's reset_pos_to_gps)
+    // rather than being gated out, and the reset counter tells the autopilot.
+    let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
+    let lost = core.unaided_since.is_some() || core.last_aiding.is_none_or(|l| t - l > timeout);
+    if lost && core.mode_ekf_direct {
+        if let Some(ekf) = core.ekf.as_mut() {
+            let bias = Vector3::new(
+                ekf.x[super::ekf::IDX_BG],
+                ekf.x[super::ekf::IDX_BG + 1],
+                ekf.x[super::ekf::IDX_BG + 2],
+            );
+            let from = ekf.pos();
+            let v_var = vel_noise * vel_noise;
+            ekf.reset_pos_vel(enu - bias, vel, cov.diagonal(), v_var);
+            for st in core.odom.values_mut() {
+                st.align = None;
+            }
+            core.reset_counter = core.reset_counter.wrapping_add(1);
+            let gap_s = core
+                .unaided_since
+                .or(core.last_aiding)
+                .map(|l| (t - l) as f64 * 1e-6);
+            let jump = (enu - bias - from).norm();
+            core.event(
+                t,
+                "reset",
+                Some(source),
+                format!(
+                    "position reset to {source} after {} without position sources (moved {jump:.2} m)",
+                    gap_s.map(|g| format!("{g:.1} s")).unwrap_or_else(|| "a spell".into())
+                ),
+                serde_json::json!({ "reset_counter": core.reset_counter, "jump_m": jump, "gap_s": gap_s }),
+            );
+            core.last_aiding = Some(t);
+            core.unaided_since = None;
+            core.gnss.last_fused = Some(t);
+            return;
+        }
+    }
     // Fuse: the slow part of the error is the bias state, the rest is white.
     let accepted = core.fuse_position(t, source, "gnss", enu, &white, None, ctx);
     if accepted {
         core.gnss.last_fused = Some(t);
+        core.unaided_since = None;
     }
     if let Some(v) = vel {
         let r = Matrix3::identity() * (vel_noise * vel_noise);

@@ -193,6 +193,9 @@ pub(crate) struct Core {
     pub events: Vec<EstimatorEvent>,
     pub throttle: BTreeMap<String, i64>,
     pub last_aiding: Option<i64>,
+    /// Since when the estimate has been dead-reckoning (no position source beyond the
+    /// aiding timeout); cleared when an absolute position source takes hold again.
+    pub unaided_since: Option<i64>,
     pub used_set: Vec<String>,
     pub mode_wrls: bool,
     pub mode_ekf_direct: bool,
@@ -734,6 +737,12 @@ impl Core {
 
     fn post(&mut self, t: i64, ctx: &Ctx) {
         let cfg = ctx.cfg;
+        let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
+        if self.unaided_since.is_none() && self.initialised() {
+            if let Some(l) = self.last_aiding.filter(|l| t - l > timeout) {
+                self.unaided_since = Some(l);
+            }
+        }
         if let Some(ekf) = self.ekf.as_ref() {
             if !ekf.is_finite() {
                 self.ekf = None;

@@ -21,6 +21,8 @@ pub const MIN_TICK_HZ: f64 = 1.0;
 const HISTORY_TICKS: usize = 600;
 const HISTORY_TICK_INTERVAL_US: i64 = 100_000;
 const HISTORY_EVENTS: usize = 200;
+/// A tick this early for a client's schedule still goes (ticks come on a 20 ms grid).
+const TICK_SLACK_US: i64 = 10_000;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FrameKind {
@@ -67,16 +69,22 @@ impl ClientQueue {
 
     fn push(&self, kind: FrameKind, t_us: i64, frame: &Arc<str>) -> bool {
         if kind == FrameKind::Tick {
-            let mut last = lock(&self.last_tick_us);
+            // `due` is when the next tick may go: scheduled on a grid so a 20 Hz client
+            // gets 20 Hz from 50 Hz ticks (not every third tick, 16.7 Hz).
+            let mut due = lock(&self.last_tick_us);
             let interval = self.tick_interval_us.load(Relaxed) as i64;
-            // A tick more than a second older than the last one means the clock moved
-            // back (a new simulator run): start over rather than go silent.
-            if let Some(l) = *last {
-                if t_us >= l && t_us - l < interval {
+            if let Some(d) = *due {
+                // Too early for this client (a tick far before the schedule means the
+                // clock moved back, a new run: take it and start over).
+                if t_us + TICK_SLACK_US < d && d - t_us <= interval {
                     return false;
                 }
             }
-            *last = Some(t_us);
+            let base = match *due {
+                Some(d) if (t_us - d).abs() <= interval => d,
+                _ => t_us,
+            };
+            *due = Some(base + interval);
         }
         let mut q = lock(&self.frames);
         if q.len() >= self.capacity {
@@ -255,8 +263,10 @@ mod tests {
             hub.publish(FrameKind::Tick, i * 10_000, tick(i * 10_000));
         }
         hub.publish(FrameKind::Event, 990_000, json!({"type": "event"}));
-        assert_eq!(fast.len(), 50 + 1);
-        assert_eq!(phone.len(), 5 + 1);
+        // Ticks at 0, 10, 30, 50, ... 990 ms (50 Hz on a grid, 51 in the first second)
+        // and 0, 190, 390, ... 990 ms (5 Hz, 6), plus the event each.
+        assert_eq!(fast.len(), 51 + 1);
+        assert_eq!(phone.len(), 6 + 1);
     }
 
     #[test]

@@ -1,0 +1,127 @@
+//! End to end: the dashboard in Debian's headless Chromium (driven by Python
+//! playwright) against `skyfuse demo`; the control API's token; a websocket client that
+//! never reads next to one that does.
+
+mod common;
+use common::*;
+use std::time::Duration;
+
+fn json(text: &str) -> serde_json::Value {
+    serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
+}
+
+#[test]
+fn the_page_draws_live_data_and_an_injected_fault_reaches_the_log_and_its_tile() {
+    let svc = Service::start(&["demo", "--no-browser"], &[]);
+    // The README shows this screenshot; the test takes it from the running demo.
+    let shot = repo_root().join("docs/dashboard.png");
+    std::fs::create_dir_all(repo_root().join("docs")).expect("docs dir");
+    let out = json(&run_py(
+        "dashboard_check.py",
+        &[
+            "--url",
+            &format!("http://127.0.0.1:{}/", svc.http_port),
+            "--token",
+            &svc.token,
+            "--screenshot",
+            shot.to_str().expect("path"),
+            "--inject-sensor",
+            "gps",
+            "--inject-fault",
+            "stop",
+            "--inject-duration",
+            "20",
+        ],
+    ));
+    assert_eq!(out["ok"], true, "{out}");
+    // Every configured sensor has a tile.
+    let status = svc.get_json("/api/v1/status");
+    let tiles = out["tiles"].as_array().expect("tiles");
+    for s in status["sensors"].as_array().expect("sensors") {
+        assert!(tiles.contains(&s["id"]), "no tile for {}: {out}", s["id"]);
+    }
+    // Every plot and the map drew points from the running simulator.
+    for (name, n) in out["point_counts"].as_object().expect("point counts") {
+        assert!(n.as_u64().unwrap_or(0) > 0, "{name} drew nothing: {out}");
+    }
+    // The fault reached the service: gps is stale in the API as on the tile.
+    let s = svc.wait_status(Duration::from_secs(10), |s| {
+        sensor(s, "gps")["health"] == "stale"
+    });
+    assert_eq!(sensor(&s, "gps")["health"], "stale");
+    assert!(shot.exists());
+}
+
+#[test]
+fn controls_need_the_token_and_change_nothing_without_it() {
+    let svc = Service::start(&["demo", "--no-browser"], &[]);
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
+    let reset = |s: &serde_json::Value| s["estimator"]["reset_counter"].as_u64().unwrap_or(999);
+    let before = reset(&svc.get_json("/api/v1/status"));
+    for token in [None, Some("wrong-token")] {
+        let (code, body) =
+            http_post(svc.http_port, "/api/v1/control/reset-origin", "", token).expect("POST");
+        assert_eq!(code, 401, "{body}");
+        let (code, _) = http_post(
+            svc.http_port,
+            "/api/v1/control/fault",
+            r#"{"sensor":"gps","fault":"stop"}"#,
+            token,
+        )
+        .expect("POST");
+        assert_eq!(code, 401);
+    }
+    std::thread::sleep(Duration::from_millis(700));
+    let s = svc.get_json("/api/v1/status");
+    assert_eq!(reset(&s), before, "a refused control changed the estimate");
+    assert_eq!(s["controls"]["refused"], 4);
+    assert_ne!(sensor(&s, "gps")["health"], "stale");
+    // The token never shows.
+    let cfg = svc.get_json("/api/v1/config");
+    assert!(!cfg.to_string().contains(&svc.token));
+    // With the token it works: the origin reset is a discontinuity.
+    let (code, body) = http_post(
+        svc.http_port,
+        "/api/v1/control/reset-origin",
+        "",
+        Some(&svc.token),
+    )
+    .expect("POST");
+    assert_eq!(code, 200, "{body}");
+    let s = svc.get_json("/api/v1/status");
+    assert_eq!(reset(&s), (before + 1) % 256);
+}
+
+#[test]
+fn a_client_that_never_reads_does_not_slow_the_others() {
+    let svc = Service::start(&["demo", "--no-browser"], &[]);
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
+    let out = json(&run_py(
+        "ws_clients.py",
+        &["--port", &svc.http_port.to_string(), "--seconds", "25"],
+    ));
+    let rates: Vec<f64> = out["tick_rate_per_second"]
+        .as_array()
+        .expect("rates")
+        .iter()
+        .filter_map(|v| v.as_f64())
+        .collect();
+    assert!(rates.len() >= 20, "{out}");
+    // The reading client keeps its 20 Hz ticks every second, start to end.
+    let worst = rates.iter().skip(1).copied().fold(f64::INFINITY, f64::min);
+    assert!(worst >= 15.0, "reader slowed to {worst:.1} Hz: {rates:?}");
+    assert!(
+        out["snapshot"]["sensors"].as_u64().unwrap_or(0) >= 6,
+        "{out}"
+    );
+    // The slow one lost frames, and they were counted.
+    let s = svc.get_json("/api/v1/status");
+    let dropped = s["websocket"]["dropped_total"].as_u64().unwrap_or(0);
+    assert!(dropped > 0, "no drops counted: {}", s["websocket"]);
+    // And the estimator kept up with its input all along.
+    assert!(
+        s["ingest"]["queue_len"].as_u64().unwrap_or(u64::MAX) < 100,
+        "{}",
+        s["ingest"]
+    );
+}
