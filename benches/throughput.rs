@@ -1,0 +1,267 @@
+//! Throughput benchmark (a bench binary, `cargo bench --bench throughput`):
+//! - decode rate per wire format and message (samples/s), payloads made by our encoders
+//!   from simulated samples (the encoders are round-trip tested against rosbags and
+//!   pymavlink);
+//! - estimator cost per sample kind (IMU prediction, each update) over a simulated flight;
+//! - whole-run throughput (samples/s) of a simulated scenario and of the real PX4 flight
+//!   replay, through the same `Fusion` core the service runs.
+//!
+//! Every figure is the median of 7 repetitions; the spread (min–max) is printed beside it.
+
+use skyfuse::codec::{self, Format, MavIdentity, RosType};
+use skyfuse::estimator::EstimatorConfig;
+use skyfuse::fusion::Fusion;
+use skyfuse::health::HealthConfig;
+use skyfuse::sample::{Decoded, Sample, SensorData, SensorKind};
+use skyfuse::sim::sensors::DEMO_STREAMS;
+use skyfuse::sim::Simulator;
+use std::collections::BTreeMap;
+use std::hint::black_box;
+use std::time::Instant;
+
+const REPS: usize = 7;
+
+fn median(mut v: Vec<f64>) -> (f64, f64, f64) {
+    v.sort_by(f64::total_cmp);
+    (v[v.len() / 2], v[0], v[v.len() - 1])
+}
+
+/// One simulated sample of each kind (taken mid-flight).
+fn sample_of(kind: SensorKind) -> SensorData {
+    Simulator::new(DEMO_STREAMS, 1, 40.0)
+        .skip_while(|e| e.measured_t < 30.0)
+        .find(|e| e.data.kind() == kind)
+        .map(|e| e.data)
+        .expect("the simulator has every kind")
+}
+
+fn decode_bench() {
+    println!("## Decode throughput (samples/s, median of {REPS}; min–max)\n");
+    println!("| format | message | bytes | samples/s | spread |");
+    println!("|---|---|---|---|---|");
+    let cases: Vec<(Format, Option<RosType>, SensorKind, &str)> = vec![
+        (
+            Format::Ros2,
+            Some(RosType::Imu),
+            SensorKind::Imu,
+            "sensor_msgs/Imu",
+        ),
+        (
+            Format::Ros2,
+            Some(RosType::NavSatFix),
+            SensorKind::Gnss,
+            "sensor_msgs/NavSatFix",
+        ),
+        (
+            Format::Ros2,
+            Some(RosType::Odometry),
+            SensorKind::Odometry,
+            "nav_msgs/Odometry",
+        ),
+        (
+            Format::Ros2,
+            Some(RosType::FlowTof),
+            SensorKind::Flow,
+            "skyfuse_msgs/FlowTof",
+        ),
+        (
+            Format::Ros1,
+            Some(RosType::Imu),
+            SensorKind::Imu,
+            "sensor_msgs/Imu",
+        ),
+        (
+            Format::Ros1,
+            Some(RosType::Odometry),
+            SensorKind::Odometry,
+            "nav_msgs/Odometry",
+        ),
+        (Format::MavlinkJson, None, SensorKind::Imu, "HIGHRES_IMU"),
+        (
+            Format::MavlinkJson,
+            None,
+            SensorKind::Flow,
+            "OPTICAL_FLOW_RAD",
+        ),
+        (
+            Format::MavlinkJson,
+            None,
+            SensorKind::Attitude,
+            "ATTITUDE_QUATERNION",
+        ),
+        (Format::MavlinkRaw, None, SensorKind::Imu, "HIGHRES_IMU"),
+        (
+            Format::MavlinkRaw,
+            None,
+            SensorKind::Flow,
+            "OPTICAL_FLOW_RAD",
+        ),
+        (Format::Json, None, SensorKind::Imu, "imu"),
+        (Format::Json, None, SensorKind::Odometry, "odometry"),
+    ];
+    let mav = MavIdentity {
+        system_id: 1,
+        component_id: 1,
+        sequence: 7,
+    };
+    for (format, ty, kind, name) in cases {
+        let data = sample_of(kind);
+        let enc = match codec::encode_sample(format, ty, 1_700_000_000_000_000, &data, mav) {
+            Ok(e) => e,
+            Err(e) => {
+                println!(
+                    "| {} | {name} | – | cannot encode: {e} | |",
+                    format.as_str()
+                );
+                continue;
+            }
+        };
+        let payload = enc.payload;
+        let mut out: Vec<Decoded> = Vec::with_capacity(4);
+        let n = 20_000;
+        let rates: Vec<f64> = (0..REPS)
+            .map(|_| {
+                let t = Instant::now();
+                for _ in 0..n {
+                    out.clear();
+                    let r = codec::decode(format, ty, black_box(&payload), &mut out);
+                    black_box(&r);
+                }
+                n as f64 / t.elapsed().as_secs_f64()
+            })
+            .collect();
+        let (m, lo, hi) = median(rates);
+        println!(
+            "| {} | {name} | {} | {:.0} | {:.0}–{:.0} |",
+            format.as_str(),
+            payload.len(),
+            m,
+            lo,
+            hi
+        );
+    }
+    println!();
+}
+
+fn inputs_of(streams: &[skyfuse::sim::sensors::StreamSpec]) -> skyfuse::fusion::InputList {
+    streams
+        .iter()
+        .map(|s| (s.input_id.to_string(), s.kind, s.rate_hz, true))
+        .collect()
+}
+
+fn sim_samples(duration_s: f64) -> Vec<Sample> {
+    Simulator::new(DEMO_STREAMS, 1, duration_s)
+        .map(|e| Sample {
+            source: DEMO_STREAMS[e.stream].input_id.into(),
+            stamp_us: Some((e.measured_t * 1e6) as i64),
+            arrival_us: (e.publish_t * 1e6) as i64,
+            data: e.data,
+        })
+        .collect()
+}
+
+fn estimator_bench() {
+    println!("## Estimator cost per sample (µs, `Fusion::process`: checks + estimator + health; median of {REPS} runs of 140 s of the demo flight)\n");
+    let samples = sim_samples(140.0);
+    let mut per_kind: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
+    let mut totals = Vec::new();
+    for _ in 0..REPS {
+        let mut f = Fusion::new(
+            EstimatorConfig::default(),
+            HealthConfig::default(),
+            &inputs_of(DEMO_STREAMS),
+        );
+        let mut sums: BTreeMap<&'static str, (f64, usize)> = BTreeMap::new();
+        let t0 = Instant::now();
+        for s in &samples {
+            let t = Instant::now();
+            black_box(f.process(s, s.arrival_us));
+            let e = sums.entry(s.data.kind().as_str()).or_default();
+            e.0 += t.elapsed().as_secs_f64();
+            e.1 += 1;
+        }
+        totals.push(samples.len() as f64 / t0.elapsed().as_secs_f64());
+        for (k, (sum, n)) in sums {
+            per_kind.entry(k).or_default().push(sum / n as f64 * 1e6);
+        }
+    }
+    println!("| sample kind (what it does) | µs/sample | spread |");
+    println!("|---|---|---|");
+    let what = |k: &str| match k {
+        "imu" => "imu (EKF prediction)",
+        "attitude" => "attitude (attitude update)",
+        "gnss" => "gnss (position + velocity update)",
+        "odometry" => "odometry (position + velocity update)",
+        "flow" => "flow (compensation + velocity update)",
+        "range" => "range (height update)",
+        _ => "other",
+    };
+    for (k, v) in per_kind {
+        let (m, lo, hi) = median(v);
+        println!("| {} | {m:.2} | {lo:.2}–{hi:.2} |", what(k));
+    }
+    let (m, lo, hi) = median(totals);
+    println!(
+        "\nWhole simulated flight: {} samples, {m:.0} samples/s ({lo:.0}–{hi:.0}), {:.0}× real time.\n",
+        samples.len(),
+        m / (samples.len() as f64 / 140.0)
+    );
+}
+
+fn replay_bench() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/px4-flow-vio-7c824ee5");
+    let t = Instant::now();
+    let log = match skyfuse::replay::px4csv::read_dir(&dir) {
+        Ok(l) => l,
+        Err(e) => {
+            println!("(PX4 replay skipped: {e})");
+            return;
+        }
+    };
+    let read_s = t.elapsed().as_secs_f64();
+    let mut rates = Vec::new();
+    for _ in 0..REPS {
+        let mut cfg = EstimatorConfig::default();
+        for id in [
+            "flow_1",
+            "range_1",
+            "vio",
+            "imu",
+            "imu_1",
+            "attitude_states",
+        ] {
+            cfg.sources.entry(id.into()).or_default().fuse = false;
+        }
+        let inputs: skyfuse::fusion::InputList = vec![
+            ("flow".into(), SensorKind::Flow, 60.0, true),
+            ("range".into(), SensorKind::Range, 50.0, true),
+            ("attitude".into(), SensorKind::Attitude, 10.0, true),
+        ];
+        let mut f = Fusion::new(cfg, HealthConfig::default(), &inputs);
+        let t0 = Instant::now();
+        for s in &log.samples {
+            black_box(f.process(s, s.arrival_us));
+        }
+        rates.push(log.samples.len() as f64 / t0.elapsed().as_secs_f64());
+    }
+    let (m, lo, hi) = median(rates);
+    println!(
+        "## Real PX4 flight replay (307 s, {} samples)\n",
+        log.samples.len()
+    );
+    println!("CSV read: {:.2} s. Fusion (flow + range + attitude): {m:.0} samples/s ({lo:.0}–{hi:.0}).\n", read_s);
+}
+
+fn main() {
+    // `cargo test --benches` runs bench binaries with --bench absent: keep it quick.
+    let quick = !std::env::args().any(|a| a == "--bench");
+    if quick {
+        println!("(quick mode: run with `cargo bench --bench throughput` for figures)");
+        return;
+    }
+    decode_bench();
+    estimator_bench();
+    replay_bench();
+}
