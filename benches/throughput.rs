@@ -106,7 +106,12 @@ fn decode_bench() {
     };
     for (format, ty, kind, name) in cases {
         let data = sample_of(kind);
-        let enc = match codec::encode_sample(format, ty, 1_700_000_000_000_000, &data, mav) {
+        // ROS stamps are wall-clock; MAVLink's are time since the autopilot booted.
+        let stamp = match format {
+            Format::MavlinkJson | Format::MavlinkRaw => 123_456_000,
+            _ => 1_700_000_000_000_000,
+        };
+        let enc = match codec::encode_sample(format, ty, stamp, &data, mav) {
             Ok(e) => e,
             Err(e) => {
                 println!(

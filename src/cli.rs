@@ -525,6 +525,9 @@ fn fmt_rmse(v: Option<f64>) -> String {
     v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "-".into())
 }
 
+/// One row of the scenario table: name, each source's APE RMSE, fused per mode.
+type ScenarioRow = (String, Vec<(String, Option<f64>)>, Vec<Option<f64>>);
+
 /// `skyfuse sim --out`: one or all scenarios, one or all fusion modes.
 fn offline_sims(
     c: &Config,
@@ -546,7 +549,7 @@ fn offline_sims(
     let many = names.len() > 1 || modes.len() > 1;
     let duration = duration.unwrap_or(scenario::DEFAULT_DURATION_S);
     // scenario -> (source scores from the first mode, fused score per mode)
-    let mut table: Vec<(String, Vec<(String, Option<f64>)>, Vec<Option<f64>>)> = Vec::new();
+    let mut table: Vec<ScenarioRow> = Vec::new();
     for name in &names {
         let scn = scenario::scenario(name)
             .ok_or_else(|| format!("unknown scenario {name:?} (see --list)"))?;
@@ -658,14 +661,17 @@ fn replay(
         }
     }
     let mut bar = Progress::new("replaying");
+    let opts = offline::ReplayOptions {
+        fuse: sources.map(|s| s.to_vec()),
+        reference: reference.to_string(),
+        window,
+    };
     let summary = offline::run_replay(
         &path.display().to_string(),
         &log.samples,
         cfg,
         c.health.clone(),
-        sources,
-        reference,
-        window,
+        &opts,
         out,
         &mut |f| bar.update(f),
     )

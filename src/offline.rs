@@ -484,18 +484,28 @@ fn mode_str(m: Mode) -> &'static str {
 /// Replay recorded samples (time-ordered) through the estimator. Sources not in
 /// `fuse` (when given) are not fused but still written for comparison. `reference`
 /// names the source the others are scored against (e.g. `vio`).
+/// What a replay fuses and how it is scored.
+#[derive(Debug, Clone, Default)]
+pub struct ReplayOptions {
+    /// Only these source ids are fused (all when `None`); the rest are still written.
+    pub fuse: Option<Vec<String>>,
+    /// The source the others are scored against (e.g. `vio`).
+    pub reference: String,
+    /// Scored span, s from the log's start.
+    pub window: Option<(f64, f64)>,
+}
+
 pub fn run_replay(
     input_name: &str,
     samples: &[Sample],
     mut cfg: EstimatorConfig,
     health: HealthConfig,
-    fuse: Option<&[String]>,
-    reference: &str,
-    window: Option<(f64, f64)>,
+    opts: &ReplayOptions,
     out: &Path,
     progress: &mut dyn FnMut(f64),
 ) -> Result<Summary, OfflineError> {
-    if let Some(list) = fuse {
+    let window = opts.window;
+    if let Some(list) = &opts.fuse {
         // Exact source ids: `flow` is the first flow sensor, `flow_1` the second.
         let ids: std::collections::BTreeSet<&str> =
             samples.iter().map(|s| s.source.as_ref()).collect();
@@ -531,7 +541,7 @@ pub fn run_replay(
     // 20 ms: the reference (30 Hz VIO) and the fused poses (50 Hz) are never closer
     // than evo's default 10 ms for every pose.
     let reference = Reference::Source {
-        name: reference,
+        name: &opts.reference,
         max_diff_s: 0.02,
     };
     finish(&rec, reference, window, out, summary)

@@ -63,20 +63,11 @@ fn token_matches(given: &str, want: &str) -> bool {
     diff == 0
 }
 
-fn authorised(s: &AppState, headers: &HeaderMap) -> Result<(), Response> {
+/// Ok, or why the request is refused.
+fn authorised(s: &AppState, headers: &HeaderMap) -> Result<(), &'static str> {
     let want = s.config.http.token.as_str();
-    let refuse = |why: &str| {
-        (
-            StatusCode::UNAUTHORIZED,
-            [(header::WWW_AUTHENTICATE, "Bearer")],
-            Json(json!({ "error": why })),
-        )
-            .into_response()
-    };
     if want.is_empty() {
-        return Err(refuse(
-            "controls are disabled: set http.token in the config to enable them",
-        ));
+        return Err("controls are disabled: set http.token in the config to enable them");
     }
     let given = headers
         .get(header::AUTHORIZATION)
@@ -86,9 +77,7 @@ fn authorised(s: &AppState, headers: &HeaderMap) -> Result<(), Response> {
     if token_matches(given.trim(), want) {
         Ok(())
     } else {
-        Err(refuse(
-            "missing or wrong token (Authorization: Bearer <token>)",
-        ))
+        Err("missing or wrong token (Authorization: Bearer <token>)")
     }
 }
 
@@ -98,10 +87,15 @@ async fn control(
     headers: HeaderMap,
     body: axum::body::Bytes,
 ) -> Response {
-    if let Err(r) = authorised(&s, &headers) {
+    if let Err(why) = authorised(&s, &headers) {
         s.controls_refused.fetch_add(1, Relaxed);
-        tracing::warn!(action, "control refused: no valid token");
-        return r;
+        tracing::warn!(action, "control refused: {why}");
+        return (
+            StatusCode::UNAUTHORIZED,
+            [(header::WWW_AUTHENTICATE, "Bearer")],
+            Json(json!({ "error": why })),
+        )
+            .into_response();
     }
     let bad =
         |msg: String| (StatusCode::BAD_REQUEST, Json(json!({ "error": msg }))).into_response();
