@@ -24,6 +24,10 @@ const LINK_QUEUE: usize = 64;
 const BACKOFF_MIN: Duration = Duration::from_millis(250);
 const BACKOFF_MAX: Duration = Duration::from_secs(10);
 const HEARTBEAT_INTERVAL_US: i64 = 1_000_000;
+/// Staleness and heartbeats are checked this often when no pose arrives.
+const CHECK_INTERVAL: Duration = Duration::from_millis(20);
+/// A pose this early for the schedule still goes (poses come every few ms).
+const SEND_SLACK_US: i64 = 2_000;
 
 /// Where MAVLink goes, parsed from the address strings users know from MAVProxy and
 /// mavlink-router.
@@ -459,9 +463,11 @@ pub async fn run(
         vision_speed_estimate: cfg.vision_speed_estimate,
         odometry: cfg.odometry,
     };
-    let period = Duration::from_secs_f64(1.0 / cfg.rate_hz);
-    let mut every = tokio::time::interval(period);
-    every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let period_us = (1e6 / cfg.rate_hz) as i64;
+    // Checks without a new pose (staleness, heartbeat) run this often.
+    let mut check = tokio::time::interval(CHECK_INTERVAL);
+    check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut next_due: Option<i64> = None;
     let max_age_us = (cfg.max_age_ms * 1e3) as i64;
     let mut seq: u8 = 0;
     let mut last_heartbeat: Option<i64> = None;
@@ -476,24 +482,32 @@ pub async fn run(
         cfg.component_id
     );
     loop {
+        // A new pose goes out as soon as one is due (lowest latency); the schedule
+        // advances on a fixed grid, so the rate is the configured one on average.
         tokio::select! {
-            _ = every.tick() => {}
+            _ = check.tick() => {}
             changed = pose.changed() => {
                 if changed.is_err() { break; }
-                continue;
             }
         }
-        stats.ticks.fetch_add(1, Relaxed);
         let now = now_us();
-        let current = pose.borrow().clone();
+        let due = next_due.is_none_or(|d| now + SEND_SLACK_US >= d);
+        let heartbeat_due =
+            cfg.heartbeat && last_heartbeat.is_none_or(|h| now - h >= HEARTBEAT_INTERVAL_US);
+        if !due && !heartbeat_due {
+            continue;
+        }
+        stats.ticks.fetch_add(1, Relaxed);
+        let current = pose.borrow_and_update().clone();
         let mut frames: Vec<mavlink::dialects::common::MavMessage> = Vec::new();
         let valid_now = current.as_ref().is_some_and(|p| p.valid);
-        if cfg.heartbeat && last_heartbeat.is_none_or(|h| now - h >= HEARTBEAT_INTERVAL_US) {
+        if heartbeat_due {
             last_heartbeat = Some(now);
             frames.push(vpe::heartbeat(valid_now));
             stats.heartbeats.fetch_add(1, Relaxed);
         }
         let outcome = match current.as_deref() {
+            _ if !due => Ok(None),
             None => Err("estimator not initialised".to_string()),
             Some(p) if now - p.time_us > max_age_us => Err(format!(
                 "estimate stale: newest is {} ms old (limit {} ms)",
@@ -508,8 +522,16 @@ pub async fn run(
                 Err(e) => Err(format!("estimate rejected: {e}")),
             },
         };
+        let advance = |next_due: &mut Option<i64>| {
+            let base = match *next_due {
+                Some(d) if (now - d).abs() <= period_us => d,
+                _ => now,
+            };
+            *next_due = Some(base + period_us);
+        };
         match outcome {
             Ok(Some((t, reset, msgs))) => {
+                advance(&mut next_due);
                 last_sent_pose_us = Some(t);
                 stats.vpe_sent.fetch_add(1, Relaxed);
                 stats.last_sent_us.store(now.max(0) as u64, Relaxed);
@@ -524,6 +546,7 @@ pub async fn run(
             }
             Ok(None) => {}
             Err(why) => {
+                advance(&mut next_due);
                 stats.withheld.fetch_add(1, Relaxed);
                 if let Ok(mut r) = stats.not_sending_reason.lock() {
                     if r.as_deref() != Some(why.as_str()) {

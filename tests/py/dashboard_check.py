@@ -37,7 +37,7 @@ CHROMIUM_ARGS = [
     "--disable-sync",
     "--no-first-run",
 ]
-FAULTS = ["stop", "nan", "jump", "covariance", "drift", "dark-floor", "clear"]
+FAULTS = ["stop", "nan", "no-fix", "jump", "covariance", "drift", "reset", "dark-floor", "tof-range", "clear"]
 
 
 class CheckFailed(Exception):
