@@ -54,6 +54,8 @@ pub struct AppState {
     pub controls_refused: AtomicU64,
     pub mavlink_stats: Arc<MavlinkStats>,
     pub zenoh_out_stats: Arc<ZenohOutStats>,
+    /// ROS 2 topics that bridges announce.
+    pub ros_topics: crate::ros_graph::TopicTable,
     pub started_us: Micros,
     pub zenoh_zid: String,
     pub zenoh_locators: Vec<String>,
@@ -156,6 +158,34 @@ impl AppState {
         );
     }
 
+    /// `GET /api/v1/ros/topics`: what bridges announce, with the inputs that use each.
+    pub fn ros_topics_json(&self) -> serde_json::Value {
+        let table = self
+            .ros_topics
+            .lock()
+            .map(|t| t.clone())
+            .unwrap_or_default();
+        let topics: Vec<serde_json::Value> = table
+            .values()
+            .map(|e| {
+                let used_by: Vec<&str> = self
+                    .config
+                    .inputs
+                    .iter()
+                    .filter(|i| i.enabled && i.key.trim_start_matches('/') == e.key)
+                    .map(|i| i.id.as_str())
+                    .collect();
+                let decodable = crate::codec::RosType::from_name(&e.ros_type).is_some();
+                json!({
+                    "key": e.key, "topic": e.topic, "type": e.ros_type, "qos": e.qos,
+                    "zid": e.zid, "alive": e.alive, "since_us": e.since_us,
+                    "used_by": used_by, "decodable": decodable,
+                })
+            })
+            .collect();
+        json!({ "topics": topics, "announced": self.config.output.ros2_announce.then(|| self.config.output.ros2_outputs().into_iter().map(|(k, t)| json!({"key": k, "type": t})).collect::<Vec<_>>()) })
+    }
+
     /// Health as published on `<prefix>/health`: sensors and the estimator's verdict.
     pub fn health_json(&self) -> serde_json::Value {
         json!({
@@ -202,6 +232,21 @@ pub async fn run_with(
     let (debug_tx, debug_rx) = watch::channel(Arc::new(crate::estimator::DebugSeries::default()));
     let (mavlink_stats, endpoints) = mavlink_out::build_stats(&config.mavlink);
     let zenoh_out_stats = Arc::new(ZenohOutStats::default());
+    let ros_topics = crate::ros_graph::TopicTable::default();
+    // ROS 2 graph: announce our topics, watch the bridges'.
+    let (ros_tokens, ros_watch) = if config.output.ros2_announce {
+        (
+            crate::ros_graph::announce(
+                &session,
+                &config.output.ros2_outputs(),
+                &config.output.ros2_qos,
+            )
+            .await,
+            crate::ros_graph::discover(&session, ros_topics.clone()).await,
+        )
+    } else {
+        (Vec::new(), None)
+    };
     let (cmd_tx, cmd_rx) = mpsc::channel(16);
     let state = Arc::new(AppState {
         config: config.clone(),
@@ -214,6 +259,7 @@ pub async fn run_with(
         controls_refused: AtomicU64::new(0),
         mavlink_stats: mavlink_stats.clone(),
         zenoh_out_stats: zenoh_out_stats.clone(),
+        ros_topics: ros_topics.clone(),
         started_us,
         zenoh_zid: zid.clone(),
         zenoh_locators: locators.clone(),
@@ -290,6 +336,15 @@ pub async fn run_with(
         .map_err(RunError::Http)?;
 
     tracing::info!("shutting down");
+    // Our ROS topics go away with us.
+    for t in ros_tokens {
+        if let Err(e) = t.undeclare().await {
+            tracing::warn!("undeclaring liveliness token: {e}");
+        }
+    }
+    if let Some(w) = ros_watch {
+        let _ = w.undeclare().await;
+    }
     for s in subscribers {
         if let Err(e) = s.undeclare().await {
             tracing::warn!("undeclaring subscriber: {e}");

@@ -214,6 +214,11 @@ pub struct OutputConfig {
     pub ros2_frame_id: String,
     /// Largest pose rate on Zenoh, Hz.
     pub pose_rate_hz: f64,
+    /// Announce the ROS 2 outputs with zenoh-bridge-ros2dds liveliness tokens, so ROS 2
+    /// tools see the topics with their types, and list the bridges' topics.
+    pub ros2_announce: bool,
+    /// QoS part of the tokens, in the bridge's form.
+    pub ros2_qos: String,
 }
 
 pub const DEFAULT_OUTPUT_PREFIX: &str = "skyfuse/{vehicle}";
@@ -233,11 +238,30 @@ impl Default for OutputConfig {
             ros2_debug_prefix: DEFAULT_DEBUG_PREFIX.into(),
             ros2_frame_id: DEFAULT_ROS_FRAME_ID.into(),
             pose_rate_hz: DEFAULT_POSE_RATE_HZ,
+            ros2_announce: true,
+            ros2_qos: crate::ros_graph::DEFAULT_QOS.into(),
         }
     }
 }
 
 impl OutputConfig {
+    /// The enabled ROS 2 outputs: (Zenoh key, ROS type).
+    pub fn ros2_outputs(&self) -> Vec<(String, &'static str)> {
+        if !self.ros2 {
+            return vec![];
+        }
+        let mut v = vec![(self.ros2_pose_key.clone(), "geometry_msgs/msg/PoseStamped")];
+        if self.ros2_debug {
+            for t in crate::output::zenoh_out::DEBUG_TOPICS {
+                v.push((
+                    format!("{}/{t}", self.ros2_debug_prefix),
+                    "geometry_msgs/msg/PointStamped",
+                ));
+            }
+        }
+        v
+    }
+
     /// The JSON key prefix with the vehicle name in place.
     pub fn prefix_for(&self, vehicle: &str) -> String {
         self.prefix

@@ -21,6 +21,7 @@
 //! - [`fusion`]: the estimator under health supervision, shared by service and offline.
 //! - [`pipeline`]: the estimator task: samples in, pose/events/live series out.
 //! - [`output`]: the fused pose out: MAVLink (VISION_POSITION_ESTIMATE) and Zenoh.
+//! - [`ros_graph`]: ROS 2 graph presence via the bridge's liveliness tokens.
 //! - [`http`]: the JSON API, the websocket hub and the page.
 //! - [`app`]: `run(config, listeners, shutdown)`, wiring it all together.
 //! - [`cli`]: the command line; `main.rs` only calls [`cli::main`].
@@ -40,5 +41,6 @@ pub mod offline;
 pub mod output;
 pub mod pipeline;
 pub mod replay;
+pub mod ros_graph;
 pub mod sample;
 pub mod sim;

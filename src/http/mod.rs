@@ -28,6 +28,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/healthz", get(healthz))
         .route("/api/v1/status", get(status))
         .route("/api/v1/config", get(config))
+        .route("/api/v1/ros/topics", get(ros_topics))
         .route("/api/v1/control/{action}", post(control))
         .route("/ws", get(ws))
         .with_state(state)
@@ -47,6 +48,10 @@ async fn healthz(State(s): State<Arc<AppState>>) -> Response {
 
 async fn status(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {
     Json(s.status_json())
+}
+
+async fn ros_topics(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {
+    Json(s.ros_topics_json())
 }
 
 async fn config(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {

@@ -1,0 +1,171 @@
+//! ROS 2 graph presence over zenoh-bridge-ros2dds's liveliness tokens.
+//!
+//! The bridge declares `@/<zid>/@ros2_lv/MP/<key>/<type>/<qos>` for every ROS publisher
+//! it routes (`/` written `§` in key and type; see zenoh-plugin-ros2dds
+//! `liveliness_mgt.rs`), and a bridge that sees such a token from another Zenoh node
+//! creates a DDS writer for it, so ROS 2 tools see the topic with its type before anyone
+//! subscribes. skyfuse announces its ROS 2 outputs that way ([`announce`]) and watches
+//! the tokens of others ([`discover`]) to list the ROS topics on the network.
+//! [`token_key`] and [`parse_token_key`] are the pure codec.
+
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+
+/// The bridge's own QoS form: keyless, reliable, keep-last 10.
+pub const DEFAULT_QOS: &str = ":1::0,10";
+/// Key expression matching every bridge publisher token.
+pub const PUBLISHER_TOKENS: &str = "@/*/@ros2_lv/MP/**";
+
+/// A publisher token, parsed.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct PublisherToken {
+    pub zid: String,
+    /// The Zenoh key the data is published on (ROS topic without its leading `/`).
+    pub key: String,
+    /// ROS type, e.g. `sensor_msgs/msg/NavSatFix`.
+    pub ros_type: String,
+    pub qos: String,
+}
+
+/// `@/<zid>/@ros2_lv/MP/<key §>/<type §>/<qos>`.
+pub fn token_key(zid: &str, key: &str, ros_type: &str, qos: &str) -> String {
+    format!(
+        "@/{zid}/@ros2_lv/MP/{}/{}/{qos}",
+        key.trim_start_matches('/').replace('/', "§"),
+        ros_type.replace('/', "§")
+    )
+}
+
+/// The inverse of [`token_key`]; `None` for anything that is not a publisher token.
+pub fn parse_token_key(k: &str) -> Option<PublisherToken> {
+    let rest = k.strip_prefix("@/")?;
+    let (zid, rest) = rest.split_once('/')?;
+    let rest = rest.strip_prefix("@ros2_lv/MP/")?;
+    // key and type have no '/' (they are §-escaped); the QoS part may contain none
+    // either in the bridge's form, but take everything after the second chunk.
+    let mut parts = rest.splitn(3, '/');
+    let key = parts.next()?.replace('§', "/");
+    let ros_type = parts.next()?.replace('§', "/");
+    let qos = parts.next().unwrap_or("").to_string();
+    if zid.is_empty() || key.is_empty() || ros_type.is_empty() {
+        return None;
+    }
+    Some(PublisherToken {
+        zid: zid.to_string(),
+        key,
+        ros_type,
+        qos,
+    })
+}
+
+/// A ROS topic offered on the network.
+#[derive(Debug, Clone, Serialize)]
+pub struct TopicEntry {
+    pub key: String,
+    pub topic: String,
+    pub ros_type: String,
+    pub qos: String,
+    pub zid: String,
+    pub alive: bool,
+    /// Host time, µs, of the last change.
+    pub since_us: i64,
+}
+
+/// The topics bridges announce, keyed by (zid, key).
+pub type TopicTable = Arc<Mutex<BTreeMap<(String, String), TopicEntry>>>;
+
+/// Declare a publisher token for each `(key, ROS type)`; they live until dropped.
+pub async fn announce(
+    session: &zenoh::Session,
+    outputs: &[(String, &'static str)],
+    qos: &str,
+) -> Vec<zenoh::liveliness::LivelinessToken> {
+    let zid = session.zid().to_string();
+    let mut tokens = Vec::new();
+    for (key, ty) in outputs {
+        let k = token_key(&zid, key, ty, qos);
+        match session.liveliness().declare_token(&k).await {
+            Ok(t) => {
+                tracing::info!(token = %k, "announced ROS 2 publisher");
+                tokens.push(t);
+            }
+            Err(e) => tracing::warn!(token = %k, "cannot declare liveliness token: {e}"),
+        }
+    }
+    tokens
+}
+
+/// Watch bridge publisher tokens (current ones first) into `table`, skipping our own.
+pub async fn discover(
+    session: &zenoh::Session,
+    table: TopicTable,
+) -> Option<zenoh::pubsub::Subscriber<()>> {
+    let own = session.zid().to_string();
+    let sub = session
+        .liveliness()
+        .declare_subscriber(PUBLISHER_TOKENS)
+        .history(true)
+        .callback(move |s| {
+            let Some(tok) = parse_token_key(s.key_expr().as_str()) else {
+                return;
+            };
+            if tok.zid == own {
+                return;
+            }
+            let alive = s.kind() == zenoh::sample::SampleKind::Put;
+            let Ok(mut t) = table.lock() else { return };
+            let e = t
+                .entry((tok.zid.clone(), tok.key.clone()))
+                .or_insert_with(|| TopicEntry {
+                    topic: format!("/{}", tok.key),
+                    key: tok.key.clone(),
+                    ros_type: tok.ros_type.clone(),
+                    qos: tok.qos.clone(),
+                    zid: tok.zid.clone(),
+                    alive,
+                    since_us: crate::ingest::now_us(),
+                });
+            if e.alive != alive || e.ros_type != tok.ros_type {
+                e.since_us = crate::ingest::now_us();
+            }
+            e.alive = alive;
+            e.ros_type = tok.ros_type;
+            e.qos = tok.qos;
+            tracing::info!(topic = %e.topic, ros_type = %e.ros_type, zid = %e.zid, alive, "ROS 2 topic on the network");
+        })
+        .await;
+    match sub {
+        Ok(s) => Some(s),
+        Err(e) => {
+            tracing::warn!("cannot watch ROS 2 liveliness tokens: {e}");
+            None
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn token_keys_as_the_bridge_writes_them() {
+        let k = token_key(
+            "1f2e3d",
+            "/gps/fix",
+            "sensor_msgs/msg/NavSatFix",
+            DEFAULT_QOS,
+        );
+        assert_eq!(
+            k,
+            "@/1f2e3d/@ros2_lv/MP/gps§fix/sensor_msgs§msg§NavSatFix/:1::0,10"
+        );
+        let t = parse_token_key(&k).expect("parses");
+        assert_eq!(t.key, "gps/fix");
+        assert_eq!(t.ros_type, "sensor_msgs/msg/NavSatFix");
+        assert_eq!(t.qos, ":1::0,10");
+        assert_eq!(t.zid, "1f2e3d");
+        assert!(parse_token_key("@/x/@ros2_lv/MS/a/b/c").is_none());
+        assert!(parse_token_key("mavlink/1/1/HEARTBEAT").is_none());
+    }
+}

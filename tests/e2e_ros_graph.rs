@@ -1,0 +1,130 @@
+//! End to end: skyfuse's ROS 2 outputs are announced with zenoh-bridge-ros2dds's
+//! liveliness tokens (checked with Python eclipse-zenoh, key strings parsed back), gone
+//! when the service stops; tokens declared as the bridge does are listed at
+//! /api/v1/ros/topics with their types, and marked gone when undeclared.
+
+mod common;
+use common::*;
+use std::time::Duration;
+
+fn json(text: &str) -> serde_json::Value {
+    serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
+}
+
+#[test]
+fn outputs_are_announced_and_bridge_topics_are_listed() {
+    // A second node on the network, to watch from after the first one stops.
+    let watcher = Service::start(&["run", "--connect", "tcp/127.0.0.1:1"], &[]);
+    let mut svc = Service::start(&["run", "--connect", &watcher.zenoh_endpoint()], &[]);
+    let zid = svc.get_json("/api/v1/status")["service"]["zenoh"]["zid"]
+        .as_str()
+        .expect("zid")
+        .to_string();
+    let list = |ep: &str| -> Vec<String> {
+        json(&run_py("ros_tokens.py", &["list", "--connect", ep]))
+            .as_array()
+            .expect("list")
+            .iter()
+            .filter_map(|v| v.as_str().map(String::from))
+            .filter(|k| k.starts_with(&format!("@/{zid}/")))
+            .collect()
+    };
+    let keys = list(&svc.zenoh_endpoint());
+    let ours: Vec<(&str, &str, &str)> = keys
+        .iter()
+        .filter_map(|k| {
+            let rest = k.strip_prefix("@/")?;
+            let (_zid, rest) = rest.split_once("/@ros2_lv/MP/")?;
+            let mut p = rest.splitn(3, '/');
+            Some((p.next()?, p.next()?, p.next()?))
+        })
+        .collect();
+    let want = [
+        ("data_fusion§pose_msg", "geometry_msgs§msg§PoseStamped"),
+        (
+            "data_fusion§compensated_OF",
+            "geometry_msgs§msg§PointStamped",
+        ),
+        ("data_fusion§OF_sum", "geometry_msgs§msg§PointStamped"),
+        ("data_fusion§oriUAV_t265", "geometry_msgs§msg§PointStamped"),
+        ("data_fusion§oriUAV_gps", "geometry_msgs§msg§PointStamped"),
+        ("data_fusion§origin_dOF", "geometry_msgs§msg§PointStamped"),
+        ("data_fusion§origin_dt265", "geometry_msgs§msg§PointStamped"),
+        ("data_fusion§origin_dgps", "geometry_msgs§msg§PointStamped"),
+        (
+            "data_fusion§fusion_displace",
+            "geometry_msgs§msg§PointStamped",
+        ),
+    ];
+    assert_eq!(ours.len(), want.len(), "{keys:?}");
+    for (k, t) in want {
+        assert!(
+            ours.iter()
+                .any(|(a, b, q)| *a == k && *b == t && *q == ":1::0,10"),
+            "no token for {k} {t}: {keys:?}"
+        );
+    }
+
+    // A bridge's tokens: listed with their types; the gps one goes away after 3 s.
+    let ep = svc.zenoh_endpoint();
+    let bridge = std::thread::spawn(move || {
+        run_py(
+            "ros_tokens.py",
+            &[
+                "bridge",
+                "--connect",
+                &ep,
+                "--hold",
+                "6",
+                "--drop-after",
+                "3",
+            ],
+        )
+    });
+    let listed = |s: &serde_json::Value, key: &str| {
+        s["topics"]
+            .as_array()
+            .and_then(|a| a.iter().find(|t| t["key"] == key).cloned())
+    };
+    let start = std::time::Instant::now();
+    let mut seen = serde_json::Value::Null;
+    while start.elapsed() < Duration::from_secs(3) {
+        seen = svc.get_json("/api/v1/ros/topics");
+        if listed(&seen, "weird/thing").is_some() && listed(&seen, "gps/fix").is_some() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let gps = listed(&seen, "gps/fix").unwrap_or_else(|| panic!("{seen}"));
+    assert_eq!(gps["type"], "sensor_msgs/msg/NavSatFix");
+    assert_eq!(gps["topic"], "/gps/fix");
+    assert_eq!(gps["alive"], true);
+    assert_eq!(gps["used_by"][0], "gps", "{gps}");
+    assert_eq!(
+        listed(&seen, "camera/odom/sample").map(|t| t["type"].clone()),
+        Some("nav_msgs/msg/Odometry".into())
+    );
+    let weird = listed(&seen, "weird/thing").expect("unknown type listed");
+    assert_eq!(weird["decodable"], false);
+    // Our own tokens are not listed as others' topics (the other skyfuse's are).
+    let topics = seen["topics"].as_array().expect("topics");
+    assert!(topics.iter().all(|t| t["zid"] != zid.as_str()), "{seen}");
+    assert!(
+        topics.iter().any(|t| t["key"] == "data_fusion/pose_msg"),
+        "{seen}"
+    );
+    let out = json(&bridge.join().expect("bridge"));
+    assert_eq!(out["declared"].as_array().map(Vec::len), Some(4));
+    let after = svc.get_json("/api/v1/ros/topics");
+    assert_eq!(
+        listed(&after, "gps/fix").map(|t| t["alive"].clone()),
+        Some(false.into())
+    );
+
+    // Seen from the other node: there while the service runs, gone when it stops.
+    assert_eq!(list(&watcher.zenoh_endpoint()).len(), want.len());
+    let (status, _) = svc.terminate();
+    assert!(status.success());
+    let left = list(&watcher.zenoh_endpoint());
+    assert!(left.is_empty(), "tokens outlived the service: {left:?}");
+}

@@ -1,0 +1,74 @@
+#!/usr/bin/env python3
+"""zenoh-bridge-ros2dds liveliness tokens, with Python eclipse-zenoh.
+
+  ros_tokens.py list --connect EP
+      print the publisher tokens alive on the network (liveliness get), as JSON
+  ros_tokens.py bridge --connect EP --hold S --drop-after D
+      declare tokens exactly as zenoh-bridge-ros2dds does for /gps/fix (NavSatFix),
+      /camera/odom/sample (Odometry), /mavros/imu/data (Imu) and an unknown type,
+      publish one rosbags-serialized CDR message on the first three, undeclare the
+      gps token after D s, and exit after S s
+"""
+import argparse
+import json
+import time
+
+from rosbags.typesys import Stores, get_typestore
+
+TOPICS = [
+    ("gps/fix", "sensor_msgs/msg/NavSatFix"),
+    ("camera/odom/sample", "nav_msgs/msg/Odometry"),
+    ("mavros/imu/data", "sensor_msgs/msg/Imu"),
+    ("weird/thing", "acme_msgs/msg/Gizmo"),
+]
+QOS = ":1::0,10"
+
+
+def session(connect):
+    import zenoh
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", "[]")
+    conf.insert_json5("connect/endpoints", json.dumps([connect]))
+    return zenoh.open(conf)
+
+
+def token(zid, key, typ):
+    return f"@/{zid}/@ros2_lv/MP/{key.replace('/', '§')}/{typ.replace('/', '§')}/{QOS}"
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("mode", choices=["list", "bridge"])
+    ap.add_argument("--connect", required=True)
+    ap.add_argument("--hold", type=float, default=5.0)
+    ap.add_argument("--drop-after", type=float, default=3.0)
+    a = ap.parse_args()
+    s = session(a.connect)
+    time.sleep(0.5)
+    if a.mode == "list":
+        keys = [str(r.ok.key_expr) for r in s.liveliness().get("@/*/@ros2_lv/MP/**", timeout=2.0) if r.ok]
+        print(json.dumps(sorted(keys)))
+    else:
+        zid = str(s.info.zid())
+        toks = {k: s.liveliness().declare_token(token(zid, k, t)) for k, t in TOPICS}
+        ts = get_typestore(Stores.ROS2_HUMBLE)
+        T = ts.types
+        hdr = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=1_700_000_000, nanosec=0), frame_id="gps")
+        fix = T["sensor_msgs/msg/NavSatFix"](header=hdr, status=T["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
+                                            latitude=47.3977, longitude=8.5456, altitude=488.5,
+                                            position_covariance=__import__("numpy").array([1.0, 0, 0, 0, 1.0, 0, 0, 0, 2.0]),
+                                            position_covariance_type=2)
+        s.put("gps/fix", bytes(ts.serialize_cdr(fix, "sensor_msgs/msg/NavSatFix")))
+        time.sleep(a.drop_after)
+        toks.pop("gps/fix").undeclare()
+        time.sleep(max(0.0, a.hold - a.drop_after))
+        print(json.dumps({"zid": zid, "declared": [token(zid, k, t) for k, t in TOPICS]}))
+        for t in toks.values():
+            t.undeclare()
+    s.close()
+
+
+if __name__ == "__main__":
+    main()
