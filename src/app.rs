@@ -240,6 +240,7 @@ pub async fn run_with(
                 &session,
                 &config.output.ros2_outputs(),
                 &config.output.ros2_qos,
+                &config.output.ros_distro,
             )
             .await,
             crate::ros_graph::discover(&session, ros_topics.clone()).await,

@@ -219,6 +219,9 @@ pub struct OutputConfig {
     pub ros2_announce: bool,
     /// QoS part of the tokens, in the bridge's form.
     pub ros2_qos: String,
+    /// ROS 2 distribution of the bridges: `humble`, or a later one (`iron`, `jazzy`,
+    /// ...) whose tokens carry the REP 2011 type hash.
+    pub ros_distro: String,
 }
 
 pub const DEFAULT_OUTPUT_PREFIX: &str = "skyfuse/{vehicle}";
@@ -240,6 +243,7 @@ impl Default for OutputConfig {
             pose_rate_hz: DEFAULT_POSE_RATE_HZ,
             ros2_announce: true,
             ros2_qos: crate::ros_graph::DEFAULT_QOS.into(),
+            ros_distro: "humble".into(),
         }
     }
 }

@@ -128,3 +128,44 @@ fn outputs_are_announced_and_bridge_topics_are_listed() {
     let left = list(&watcher.zenoh_endpoint());
     assert!(left.is_empty(), "tokens outlived the service: {left:?}");
 }
+
+#[test]
+fn jazzy_tokens_carry_the_rep_2011_type_hash_rosbags_computes() {
+    let svc = Service::start(&["run"], &[("SKYFUSE__OUTPUT__ROS_DISTRO", "jazzy")]);
+    let keys = json(&run_py(
+        "ros_tokens.py",
+        &["list", "--connect", &svc.zenoh_endpoint()],
+    ));
+    let want = json(&run_py(
+        "rihs01.py",
+        &[
+            "geometry_msgs/msg/PoseStamped",
+            "geometry_msgs/msg/PointStamped",
+        ],
+    ));
+    let keys: Vec<&str> = keys
+        .as_array()
+        .expect("list")
+        .iter()
+        .filter_map(|v| v.as_str())
+        .collect();
+    let pose = keys
+        .iter()
+        .find(|k| k.contains("/data_fusion§pose_msg/"))
+        .unwrap_or_else(|| panic!("{keys:?}"));
+    let hash = want["geometry_msgs/msg/PoseStamped"]
+        .as_str()
+        .expect("hash");
+    assert!(
+        pose.ends_with(&format!("/:1::0,10:typehash={hash};")),
+        "{pose} vs {hash}"
+    );
+    let point_hash = want["geometry_msgs/msg/PointStamped"]
+        .as_str()
+        .expect("hash");
+    let points = keys
+        .iter()
+        .filter(|k| k.ends_with(&format!(":typehash={point_hash};")))
+        .count();
+    assert_eq!(points, 8, "{keys:?}");
+}
