@@ -126,6 +126,27 @@ impl AppState {
                     } else {
                         (h["state"].clone(), h["reasons"].clone())
                     };
+                    // A bridge announcing another type than configured is a standing
+                    // fault, whatever arrived lately.
+                    let mismatch =
+                        self.config
+                            .inputs
+                            .iter()
+                            .find(|i| i.id == st.id)
+                            .and_then(|i| {
+                                crate::ingest::type_mismatch(
+                                    i,
+                                    self.ingest.announced_type(&i.key).as_deref(),
+                                )
+                            });
+                    let (state, reasons) = match mismatch {
+                        Some(why) => {
+                            let mut r = reasons.as_array().cloned().unwrap_or_default();
+                            r.insert(0, json!({"code": "type_mismatch", "text": why}));
+                            (json!("failed"), serde_json::Value::Array(r))
+                        }
+                        None => (state, reasons),
+                    };
                     obj.insert("health".into(), state);
                     obj.insert("reasons".into(), reasons);
                     obj.insert("ingest".into(), ingest);
@@ -232,7 +253,7 @@ pub async fn run_with(
     let (debug_tx, debug_rx) = watch::channel(Arc::new(crate::estimator::DebugSeries::default()));
     let (mavlink_stats, endpoints) = mavlink_out::build_stats(&config.mavlink);
     let zenoh_out_stats = Arc::new(ZenohOutStats::default());
-    let ros_topics = crate::ros_graph::TopicTable::default();
+    let ros_topics = ingest.ros_topics.clone();
     // ROS 2 graph: announce our topics, watch the bridges'.
     let (ros_tokens, ros_watch) = if config.output.ros2_announce {
         (

@@ -295,6 +295,9 @@ pub struct InputConfig {
     pub rate_hz: f64,
     #[serde(default = "default_true")]
     pub enabled: bool,
+    /// `type = "auto"` (ros2 only): the type a bridge announces for the key is used.
+    #[serde(skip)]
+    pub auto_type: bool,
 }
 
 impl InputConfig {
@@ -332,13 +335,31 @@ impl Config {
         Self::from_value(value, origin)
     }
 
-    fn from_value(value: toml::Value, origin: &str) -> Result<Config, ConfigError> {
-        let cfg: Config = value
-            .try_into()
-            .map_err(|e: toml::de::Error| ConfigError::Parse {
-                origin: origin.to_string(),
-                message: e.to_string(),
-            })?;
+    fn from_value(mut value: toml::Value, origin: &str) -> Result<Config, ConfigError> {
+        // `type = "auto"` is not a ROS type: take it out before the typed parse.
+        let mut auto = Vec::new();
+        if let Some(inputs) = value.get_mut("inputs").and_then(|v| v.as_array_mut()) {
+            for (i, input) in inputs.iter_mut().enumerate() {
+                if let Some(t) = input.as_table_mut() {
+                    if t.get("type").and_then(|v| v.as_str()) == Some("auto") {
+                        t.remove("type");
+                        auto.push(i);
+                    }
+                }
+            }
+        }
+        let mut cfg: Config =
+            value
+                .try_into()
+                .map_err(|e: toml::de::Error| ConfigError::Parse {
+                    origin: origin.to_string(),
+                    message: e.to_string(),
+                })?;
+        for i in auto {
+            if let Some(input) = cfg.inputs.get_mut(i) {
+                input.auto_type = true;
+            }
+        }
         cfg.validate().map_err(|message| ConfigError::Invalid {
             origin: origin.to_string(),
             message,
@@ -413,7 +434,12 @@ impl Config {
                     ));
                 }
             }
-            if input.format.needs_ros_type() && input.ros_type.is_none() {
+            if input.auto_type && input.format != Format::Ros2 {
+                return Err(format!(
+                    "{name}: `type = \"auto\"` works for ros2 inputs only (bridges announce ROS 2 types)"
+                ));
+            }
+            if input.format.needs_ros_type() && input.ros_type.is_none() && !input.auto_type {
                 return Err(format!(
                     "{name}: format `{}` needs `type` (a ROS message type such as \"sensor_msgs/msg/NavSatFix\")",
                     input.format

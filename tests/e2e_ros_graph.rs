@@ -7,6 +7,27 @@ mod common;
 use common::*;
 use std::time::Duration;
 
+/// Tokens declared as zenoh-bridge-ros2dds does, for 6 s; the gps one goes after
+/// `drop_after_s`.
+fn bridge_tokens(svc: &Service, drop_after_s: u32) -> std::thread::JoinHandle<String> {
+    let ep = svc.zenoh_endpoint();
+    std::thread::spawn(move || {
+        let drop = drop_after_s.to_string();
+        run_py(
+            "ros_tokens.py",
+            &[
+                "bridge",
+                "--connect",
+                &ep,
+                "--hold",
+                "6",
+                "--drop-after",
+                &drop,
+            ],
+        )
+    })
+}
+
 fn json(text: &str) -> serde_json::Value {
     serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
 }
@@ -66,21 +87,7 @@ fn outputs_are_announced_and_bridge_topics_are_listed() {
     }
 
     // A bridge's tokens: listed with their types; the gps one goes away after 3 s.
-    let ep = svc.zenoh_endpoint();
-    let bridge = std::thread::spawn(move || {
-        run_py(
-            "ros_tokens.py",
-            &[
-                "bridge",
-                "--connect",
-                &ep,
-                "--hold",
-                "6",
-                "--drop-after",
-                "3",
-            ],
-        )
-    });
+    let bridge = bridge_tokens(&svc, 3);
     let listed = |s: &serde_json::Value, key: &str| {
         s["topics"]
             .as_array()
@@ -168,4 +175,65 @@ fn jazzy_tokens_carry_the_rep_2011_type_hash_rosbags_computes() {
         .filter(|k| k.ends_with(&format!(":typehash={point_hash};")))
         .count();
     assert_eq!(points, 8, "{keys:?}");
+}
+
+#[test]
+fn auto_typed_inputs_decode_and_a_mismatched_type_is_reported_not_decoded() {
+    let dir = std::env::temp_dir().join(format!("skyfuse-rosgraph-{}", free_port()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let cfg = dir.join("auto.toml");
+    std::fs::write(
+        &cfg,
+        r#"
+[[inputs]]
+id = "gps"
+kind = "gnss"
+key = "gps/fix"
+format = "ros2"
+type = "auto"
+rate_hz = 10.0
+
+[[inputs]]
+id = "t265"
+kind = "odometry"
+key = "camera/odom/sample"
+format = "ros2"
+type = "geometry_msgs/msg/PoseStamped"
+rate_hz = 200.0
+
+[[inputs]]
+id = "imu"
+kind = "imu"
+key = "mavros/imu/data"
+format = "ros2"
+type = "auto"
+rate_hz = 100.0
+"#,
+    )
+    .expect("config");
+    let svc = Service::start(&["run", "-c", cfg.to_str().expect("path")], &[]);
+    let bridge = bridge_tokens(&svc, 5);
+    let s = svc.wait_status(Duration::from_secs(5), |s| {
+        sensor(s, "t265")["rejected"].as_u64() == Some(1)
+    });
+    let (gps, t265, imu) = (sensor(&s, "gps"), sensor(&s, "t265"), sensor(&s, "imu"));
+    assert_eq!(gps["accepted"], 1, "{gps}");
+    assert_eq!(gps["type"], "auto");
+    assert_eq!(imu["accepted"], 1, "{imu}");
+    assert_eq!(t265["accepted"], 0, "{t265}");
+    assert_eq!(t265["rejected"], 1, "{t265}");
+    let why = "camera/odom/sample is announced as nav_msgs/msg/Odometry, configured as geometry_msgs/msg/PoseStamped";
+    assert_eq!(t265["last_error"], why);
+    // And it is a health reason of the sensor.
+    let s = svc.wait_status(Duration::from_secs(3), |s| {
+        sensor(s, "t265")["reasons"].to_string().contains(why)
+    });
+    assert!(
+        sensor(&s, "t265")["reasons"].to_string().contains(why),
+        "{}\n{}",
+        sensor(&s, "t265"),
+        svc.get_json("/api/v1/ros/topics")
+    );
+    assert_eq!(sensor(&s, "t265")["health"], "failed");
+    bridge.join().expect("bridge");
 }

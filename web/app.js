@@ -919,6 +919,34 @@
   setWin(state.win);
   connect();
 
+  // ------------------------------------------------- ROS 2 topics (bridges' tokens)
+  async function refreshRosTopics() {
+    try {
+      const r = await fetch('api/v1/ros/topics', { cache: 'no-store' });
+      if (!r.ok) return;
+      const j = await r.json();
+      const topics = (j.topics || []).slice().sort((a, b) => a.topic.localeCompare(b.topic));
+      const body = document.querySelector('#ros-topics tbody');
+      body.replaceChildren(...topics.map((t) => {
+        const tr = document.createElement('tr');
+        if (!t.alive) tr.className = 'muted';
+        const cells = [
+          t.topic,
+          t.type,
+          t.used_by && t.used_by.length ? `used by ${t.used_by.join(', ')}` : (t.decodable ? '' : 'not decodable'),
+          t.alive ? '' : 'gone',
+        ];
+        for (const c of cells) { const td = document.createElement('td'); td.textContent = c; tr.appendChild(td); }
+        return tr;
+      }));
+      const alive = topics.filter((t) => t.alive).length;
+      document.getElementById('ros-summary').textContent = topics.length
+        ? `${alive} live topic${alive === 1 ? '' : 's'} from bridges` : 'no bridge seen';
+    } catch (e) { /* the service is restarting: the websocket shows it */ }
+  }
+  refreshRosTopics();
+  setInterval(refreshRosTopics, 3000);
+
   // test hook: cheap accessors only
   window.skyfuse = {
     charts,

@@ -554,6 +554,10 @@ impl SensorHealth {
         let hold = (cfg.hold_ms * 1e3) as i64;
         self.conditions.retain(|_, c| t - c.last_us <= hold);
         let Some(last) = self.last_sample_us else {
+            // Nothing usable yet: if everything so far was rejected, say why.
+            if !self.conditions.is_empty() {
+                return (HealthState::Failed, self.condition_reasons());
+            }
             return (
                 HealthState::NoData,
                 vec![Reason {
@@ -595,15 +599,17 @@ impl SensorHealth {
             .map(|c| c.state)
             .max_by_key(|s| s.rank())
             .unwrap_or(HealthState::Ok);
-        let reasons = self
-            .conditions
+        (worst, self.condition_reasons())
+    }
+
+    fn condition_reasons(&self) -> Vec<Reason> {
+        self.conditions
             .iter()
             .map(|(code, c)| Reason {
                 code,
                 text: c.text.clone(),
             })
-            .collect();
-        (worst, reasons)
+            .collect()
     }
 
     fn evaluate(&mut self, cfg: &HealthConfig, t: i64) -> Option<Transition> {

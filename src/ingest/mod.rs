@@ -246,7 +246,11 @@ impl InputState {
             kind: self.config.kind,
             key: self.config.key.clone(),
             format: self.config.format,
-            ros_type: self.config.ros_type.map(|t| t.ros2_name().to_string()),
+            ros_type: if self.config.auto_type {
+                Some("auto".to_string())
+            } else {
+                self.config.ros_type.map(|t| t.ros2_name().to_string())
+            },
             enabled: self.config.enabled,
             received: c.received.load(Relaxed),
             accepted: c.accepted.load(Relaxed),
@@ -293,6 +297,9 @@ pub struct Ingest {
     pub inputs: Vec<Arc<InputState>>,
     /// Our own MAVLink (system, component): skipped when it comes back.
     own_mav: (u8, u8),
+    /// ROS 2 topics the bridges announce (filled by `ros_graph::discover`): the type of
+    /// `type = "auto"` inputs, and a check of configured types.
+    pub ros_topics: crate::ros_graph::TopicTable,
 }
 
 impl Ingest {
@@ -305,7 +312,16 @@ impl Ingest {
                 .map(|c| Arc::new(InputState::new(c)))
                 .collect(),
             own_mav: (config.mavlink.system_id, config.mavlink.component_id),
+            ros_topics: Default::default(),
         }
+    }
+
+    /// The ROS type a live bridge token announces for `key`, if any.
+    pub fn announced_type(&self, key: &str) -> Option<String> {
+        let t = self.ros_topics.lock().ok()?;
+        t.values()
+            .find(|e| e.alive && e.key == key.trim_start_matches('/'))
+            .map(|e| e.ros_type.clone())
     }
 
     pub fn statuses(&self, now: Micros) -> Vec<InputStatus> {
@@ -331,13 +347,42 @@ impl Ingest {
                 }
             }
         }
+        let mut ros_type = input.config.ros_type;
+        if input.config.format == Format::Ros2 {
+            let announced = self.announced_type(&input.config.key);
+            if let Some(why) = type_mismatch(&input.config, announced.as_deref()) {
+                // Decoding another type's bytes would give garbage, not an error.
+                input.reject(Rejection::WrongType(why), arrival_us);
+                return Vec::new();
+            }
+            let key = &input.config.key;
+            match (input.config.auto_type, ros_type, announced) {
+                (true, _, Some(a)) => match RosType::from_name(&a) {
+                    Some(t) => ros_type = Some(t),
+                    None => {
+                        input.reject(
+                            Rejection::WrongType(format!(
+                                "{key} is announced as {a}, which skyfuse cannot decode"
+                            )),
+                            arrival_us,
+                        );
+                        return Vec::new();
+                    }
+                },
+                (true, _, None) => {
+                    input.reject(
+                        Rejection::WrongType(format!(
+                            "type = \"auto\" but no bridge announces {key} (no liveliness token)"
+                        )),
+                        arrival_us,
+                    );
+                    return Vec::new();
+                }
+                _ => {}
+            }
+        }
         let mut decoded: Vec<Decoded> = Vec::new();
-        let result = codec::decode(
-            input.config.format,
-            input.config.ros_type,
-            payload,
-            &mut decoded,
-        );
+        let result = codec::decode(input.config.format, ros_type, payload, &mut decoded);
         match result {
             Err(e) => input.reject(Rejection::Decode(e), arrival_us),
             // A valid message with nothing for us (a HEARTBEAT).
@@ -387,6 +432,22 @@ impl Ingest {
 
 /// zenoh-plugin-ros1 keys start with `<hex(datatype)>/<md5>/`: check them against the
 /// configured type so a mismatch is a clear error, not garbage decoded.
+/// Why a ros2 input with a configured type cannot take what its key carries: a bridge
+/// announces another type for it.
+pub fn type_mismatch(input: &InputConfig, announced: Option<&str>) -> Option<String> {
+    let (Some(t), Some(a)) = (input.ros_type, announced) else {
+        return None;
+    };
+    if input.auto_type || input.format != Format::Ros2 || RosType::from_name(a) == Some(t) {
+        return None;
+    }
+    Some(format!(
+        "{} is announced as {a}, configured as {}",
+        input.key.trim_start_matches('/'),
+        t.ros2_name()
+    ))
+}
+
 fn check_ros1_key(key: &str, ty: RosType) -> Result<(), String> {
     let mut chunks = key.split('/');
     let (Some(hex_type), Some(md5)) = (chunks.next(), chunks.next()) else {

@@ -60,7 +60,24 @@ def main():
                                             latitude=47.3977, longitude=8.5456, altitude=488.5,
                                             position_covariance=__import__("numpy").array([1.0, 0, 0, 0, 1.0, 0, 0, 0, 2.0]),
                                             position_covariance_type=2)
+        V3 = T["geometry_msgs/msg/Vector3"]
+        quat = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+        pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=1.0, y=2.0, z=0.5), orientation=quat)
+        cov = __import__("numpy").eye(6).flatten() * 0.001
+        odom = T["nav_msgs/msg/Odometry"](
+            header=hdr, child_frame_id="base",
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=cov),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=T["geometry_msgs/msg/Twist"](linear=V3(x=0.1, y=0.0, z=0.0), angular=V3(x=0.0, y=0.0, z=0.0)),
+                covariance=cov))
+        zeros = __import__("numpy").zeros(9)
+        imu = T["sensor_msgs/msg/Imu"](header=hdr, orientation=quat, orientation_covariance=zeros,
+                                       angular_velocity=V3(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=zeros,
+                                       linear_acceleration=V3(x=0.0, y=0.0, z=9.81), linear_acceleration_covariance=zeros)
+        time.sleep(0.5)  # let subscribers see the tokens before the data
         s.put("gps/fix", bytes(ts.serialize_cdr(fix, "sensor_msgs/msg/NavSatFix")))
+        s.put("camera/odom/sample", bytes(ts.serialize_cdr(odom, "nav_msgs/msg/Odometry")))
+        s.put("mavros/imu/data", bytes(ts.serialize_cdr(imu, "sensor_msgs/msg/Imu")))
         time.sleep(a.drop_after)
         toks.pop("gps/fix").undeclare()
         time.sleep(max(0.0, a.hold - a.drop_after))
