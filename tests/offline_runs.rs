@@ -104,3 +104,39 @@ fn real_px4_flight_flow_range_attitude_beats_ekf2_against_vio() {
     // Not fused, still written for comparison.
     assert!(a.join("vio.tum").exists() && a.join("ekf2.tum").exists());
 }
+
+#[test]
+fn on_every_scenario_the_fused_track_beats_the_best_single_source() {
+    let mut table = vec![];
+    let mut losers = vec![];
+    for (name, _) in skyfuse::sim::scenario::NAMES {
+        let scn = scenario(name).expect("scenario");
+        let out = tmp(&format!("all-{name}"));
+        let s = run_scenario(
+            &scn,
+            1,
+            skyfuse::sim::scenario::DEFAULT_DURATION_S,
+            EstimatorConfig::default(),
+            HealthConfig::default(),
+            &out,
+            &mut |_| {},
+        )
+        .expect("run");
+        let (fused, best) = s.fused_and_best_source();
+        let fused = fused.unwrap_or_else(|| panic!("{name}: no fused score"));
+        let (src, b) = best.unwrap_or_else(|| panic!("{name}: no source score"));
+        table.push(format!(
+            "{name:<16} fused {fused:.3} m, best source {src} {b:.3} m"
+        ));
+        if fused >= b {
+            losers.push(name);
+        }
+        let _ = std::fs::remove_dir_all(&out);
+    }
+    println!("{}", table.join("\n"));
+    assert!(
+        losers.is_empty(),
+        "fused not better on {losers:?}:\n{}",
+        table.join("\n")
+    );
+}

@@ -89,6 +89,9 @@ const GPS_BIAS_RW: f64 = 0.05;
 const GPS_H_VAR: f64 = 0.6;
 const GPS_V_VAR: f64 = 1.8;
 
+/// How fast a visual odometry that lost tracking wanders off, m/s.
+const LOST_TRACKING_MPS: f64 = 0.05;
+
 /// Stateful sensor models for one simulated vehicle.
 pub struct SensorModels {
     rng: SmallRng,
@@ -212,6 +215,19 @@ impl SensorModels {
                 FaultKind::Reset => {
                     // Tracking lost and restarted: the odometry frame is where it restarted.
                     let r = truth_of(self.profile, f.start_s);
+                    (p0, q0) = (r.position, r.attitude);
+                    fault_drift = Vector3::zeros();
+                    resets = resets.wrapping_add(1);
+                }
+                // A T265 reporting 0.01 has lost tracking: its position wanders off
+                // meanwhile, and what it lost stays lost.
+                FaultKind::Covariance => {
+                    fault_drift.y += LOST_TRACKING_MPS * (s.t.min(f.end_s) - f.start_s).max(0.0);
+                }
+                // A camera that stopped (USB reset, crash) restarts its frame where it
+                // comes back.
+                FaultKind::Stop if s.t >= f.end_s => {
+                    let r = truth_of(self.profile, f.end_s);
                     (p0, q0) = (r.position, r.attitude);
                     fault_drift = Vector3::zeros();
                     resets = resets.wrapping_add(1);
