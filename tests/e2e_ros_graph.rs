@@ -213,8 +213,11 @@ rate_hz = 100.0
     .expect("config");
     let svc = Service::start(&["run", "-c", cfg.to_str().expect("path")], &[]);
     let bridge = bridge_tokens(&svc, 5);
+    // All three are put one after the other: wait for the last to be counted.
     let s = svc.wait_status(Duration::from_secs(5), |s| {
         sensor(s, "t265")["rejected"].as_u64() == Some(1)
+            && sensor(s, "gps")["received"].as_u64() == Some(1)
+            && sensor(s, "imu")["received"].as_u64() == Some(1)
     });
     let (gps, t265, imu) = (sensor(&s, "gps"), sensor(&s, "t265"), sensor(&s, "imu"));
     assert_eq!(gps["accepted"], 1, "{gps}");
