@@ -160,23 +160,16 @@ impl AppState {
             .collect()
     }
 
-    /// An event from a control action, to the event log and the dashboard.
-    pub fn publish_control_event(&self, kind: &str, source: Option<&str>, message: &str) {
-        let t = now_us();
-        let event = json!({
-            "time_us": t,
-            "t": (t - self.started_us) as f64 / 1e6,
-            "kind": kind,
-            "source": source,
-            "message": message,
-            "data": null,
-        });
-        let _ = self.pipeline.events_tx.send(Arc::new(event.clone()));
-        self.hub.publish(
-            FrameKind::Event,
-            t,
-            json!({"type": "event", "event": event}),
-        );
+    /// An event from a control action, to the event log, the outputs and the dashboard.
+    pub fn publish_control_event(&self, kind: &'static str, source: Option<&str>, message: &str) {
+        let event = crate::estimator::EstimatorEvent {
+            time_us: now_us(),
+            kind,
+            source: source.map(String::from),
+            message: message.to_string(),
+            data: serde_json::Value::Null,
+        };
+        pipeline::publish_events(&self.pipeline, &[event]);
     }
 
     /// `GET /api/v1/ros/topics`: what bridges announce, with the inputs that use each.

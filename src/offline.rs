@@ -285,6 +285,28 @@ fn windowed(tr: &Trajectory, window: Option<(f64, f64)>) -> Trajectory {
     out
 }
 
+/// The truth at each of `times`.
+fn truth_at(
+    truth: &dyn Fn(f64) -> (Vector3<f64>, UnitQuaternion<f64>),
+    times: &[f64],
+) -> Trajectory {
+    let mut tr = Trajectory::default();
+    for &t in times {
+        let (p, q) = truth(t);
+        tr.t.push(t);
+        tr.p.push(p);
+        tr.q.push(q);
+    }
+    tr
+}
+
+/// What a run was fed, for its summary.
+struct RunInput {
+    name: String,
+    mode: Mode,
+    samples: u64,
+}
+
 /// Write every trajectory, the events and the summary; score against `reference`
 /// (SE(3)-aligned APE, as `evo_ape tum ref est -a`) over `window` (s) if given.
 fn finish(
@@ -292,7 +314,7 @@ fn finish(
     reference: Reference<'_>,
     window: Option<(f64, f64)>,
     out: &Path,
-    mut summary: Summary,
+    input: RunInput,
 ) -> Result<Summary, OfflineError> {
     std::fs::create_dir_all(out).map_err(|source| OfflineError::CreateDir {
         path: out.to_path_buf(),
@@ -300,13 +322,7 @@ fn finish(
     })?;
     let mut files = Vec::new();
     if let Reference::Truth(truth) = &reference {
-        let mut t = Trajectory::default();
-        for &ti in &rec.fused.t {
-            let (p, q) = truth(ti);
-            t.t.push(ti);
-            t.p.push(p);
-            t.q.push(q);
-        }
+        let t = truth_at(*truth, &rec.fused.t);
         files.push(write_file(out, "truth.tum", &tum("truth", &t)?)?);
     }
     files.push(write_file(out, "fused.tum", &tum("fused", &rec.fused)?)?);
@@ -324,14 +340,7 @@ fn finish(
         let tr = windowed(tr, window);
         let ape = match &reference {
             Reference::Truth(truth) => {
-                let mut r = Trajectory::default();
-                for &ti in &tr.t {
-                    let (p, q) = truth(ti);
-                    r.t.push(ti);
-                    r.p.push(p);
-                    r.q.push(q);
-                }
-                ape_aligned(&r, &tr, ApeOptions::default())
+                ape_aligned(&truth_at(*truth, &tr.t), &tr, ApeOptions::default())
             }
             Reference::Source {
                 name: rn,
@@ -357,16 +366,21 @@ fn finish(
         }
         score(name, tr);
     }
-    summary.scores = scores;
-    summary.fused_poses = rec.fused.t.len();
-    summary.events = rec.events.len();
-    summary.reference = match reference {
-        Reference::Truth(_) => "truth".into(),
-        Reference::Source { name, .. } => name.into(),
-    };
-    summary.window_s = window;
     files.push("summary.json".into());
-    summary.files = files;
+    let summary = Summary {
+        input: input.name,
+        mode: input.mode.as_str(),
+        samples: input.samples,
+        fused_poses: rec.fused.t.len(),
+        events: rec.events.len(),
+        reference: match reference {
+            Reference::Truth(_) => "truth".into(),
+            Reference::Source { name, .. } => name.into(),
+        },
+        window_s: window,
+        scores,
+        files,
+    };
     let text = serde_json::to_string_pretty(&summary).unwrap_or_default() + "\n";
     write_file(out, "summary.json", &text)?;
     Ok(summary)
@@ -432,23 +446,17 @@ pub fn run_scenario(
     // Faults scheduled in order of time, among the estimator's own events.
     rec.events
         .sort_by(|a, b| event_time(a).total_cmp(&event_time(b)));
-    let summary = Summary {
-        input: format!("scenario {} (seed {seed}, {duration_s} s)", scn.name),
-        mode: mode_str(mode),
+    let input = RunInput {
+        name: format!("scenario {} (seed {seed}, {duration_s} s)", scn.name),
+        mode,
         samples,
-        fused_poses: 0,
-        events: 0,
-        reference: String::new(),
-        window_s: None,
-        scores: vec![],
-        files: vec![],
     };
     let profile = scn.profile;
     let truth = move |t: f64| {
         let s = truth_of(profile, t);
         (s.position, s.attitude)
     };
-    finish(&rec, Reference::Truth(&truth), None, out, summary)
+    finish(&rec, Reference::Truth(&truth), None, out, input)
 }
 
 fn event_time(line: &str) -> f64 {
@@ -475,10 +483,6 @@ fn replay_inputs(samples: &[Sample]) -> InputList {
             (id.to_string(), kind, (n as f64 / span).max(0.1), true)
         })
         .collect()
-}
-
-fn mode_str(m: Mode) -> &'static str {
-    m.as_str()
 }
 
 /// Replay recorded samples (time-ordered) through the estimator. Sources not in
@@ -527,16 +531,10 @@ pub fn run_replay(
         }
     }
     progress(1.0);
-    let summary = Summary {
-        input: input_name.to_string(),
-        mode: mode_str(mode),
+    let input = RunInput {
+        name: input_name.to_string(),
+        mode,
         samples: samples.len() as u64,
-        fused_poses: 0,
-        events: 0,
-        reference: String::new(),
-        window_s: None,
-        scores: vec![],
-        files: vec![],
     };
     // 20 ms: the reference (30 Hz VIO) and the fused poses (50 Hz) are never closer
     // than evo's default 10 ms for every pose.
@@ -544,5 +542,5 @@ pub fn run_replay(
         name: &opts.reference,
         max_diff_s: 0.02,
     };
-    finish(&rec, reference, window, out, summary)
+    finish(&rec, reference, window, out, input)
 }

@@ -3,7 +3,9 @@
 //! events and live series go to the websocket hub, and a status snapshot is kept for
 //! the HTTP API. Controls arrive as [`Command`]s.
 
-use crate::estimator::{DebugSeries, Estimator, EstimatorConfig, EstimatorEvent, FusedPose};
+use crate::estimator::{
+    DebugSeries, Estimator, EstimatorConfig, EstimatorEvent, EstimatorStatus, FusedPose,
+};
 use crate::fusion::{Fusion, InputList};
 use crate::health::HealthConfig;
 use crate::http::hub::{FrameKind, Hub};
@@ -273,9 +275,8 @@ pub async fn run(
 }
 
 /// Each sensor's health as the status API shows it.
-pub fn health_json(fusion: &Fusion, now: i64) -> Value {
+pub fn health_json(fusion: &Fusion, st: &EstimatorStatus, now: i64) -> Value {
     let mut out = serde_json::Map::new();
-    let st = fusion.est.state_summary();
     for h in fusion.health.sensors() {
         let src = st.sources.get(&h.id);
         out.insert(
@@ -294,8 +295,9 @@ pub fn health_json(fusion: &Fusion, now: i64) -> Value {
 }
 
 fn refresh_status(shared: &PipelineShared, fusion: &Fusion) {
-    let v = serde_json::to_value(fusion.est.state_summary()).unwrap_or(Value::Null);
-    let h = health_json(fusion, crate::ingest::now_us());
+    let st = fusion.est.state_summary();
+    let h = health_json(fusion, &st, crate::ingest::now_us());
+    let v = serde_json::to_value(st).unwrap_or(Value::Null);
     if let Ok(mut s) = shared.status.lock() {
         *s = v;
     }
@@ -304,7 +306,8 @@ fn refresh_status(shared: &PipelineShared, fusion: &Fusion) {
     }
 }
 
-fn publish_events(shared: &PipelineShared, events: &[EstimatorEvent]) {
+/// Count, log and send events to the outputs and the websocket hub.
+pub fn publish_events(shared: &PipelineShared, events: &[EstimatorEvent]) {
     for e in events {
         shared.events.fetch_add(1, Relaxed);
         tracing::info!(

@@ -188,6 +188,21 @@ pub struct Imu {
     pub orientation_cov: Option<Matrix3<f64>>,
 }
 
+impl Imu {
+    /// Rates and specific force only, no orientation or covariances (MAVLink's IMU
+    /// messages, PX4's vehicle_imu).
+    pub fn from_rates(gyro: Option<Vector3<f64>>, accel: Option<Vector3<f64>>) -> Self {
+        Imu {
+            gyro,
+            accel,
+            orientation: None,
+            gyro_cov: None,
+            accel_cov: None,
+            orientation_cov: None,
+        }
+    }
+}
+
 /// Attitude from the autopilot: body FLU → world ENU.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Attitude {

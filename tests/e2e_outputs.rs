@@ -15,8 +15,8 @@ fn f(v: &serde_json::Value) -> f64 {
     v.as_f64().unwrap_or(f64::NAN)
 }
 
-#[test]
-fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
+/// `skyfuse demo` sending MAVLink to a free UDP port; returns the service and the port.
+fn demo_with_mavlink_udp() -> (Service, u16) {
     let udp = free_port();
     let svc = Service::start(
         &[
@@ -27,6 +27,12 @@ fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
         ],
         &[],
     );
+    (svc, udp)
+}
+
+#[test]
+fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
+    let (svc, udp) = demo_with_mavlink_udp();
     // The listener starts right away: it sees take-off (4–10 s, to 2 m) and the first
     // leg of the figure-eight (from 10 s: east and north both grow).
     let out = json(&run_py(
@@ -141,16 +147,7 @@ fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
 
 #[test]
 fn no_position_source_means_no_vision_position_estimate() {
-    let udp = free_port();
-    let svc = Service::start(
-        &[
-            "demo",
-            "--no-browser",
-            "--mavlink",
-            &format!("udpout:127.0.0.1:{udp}"),
-        ],
-        &[],
-    );
+    let (svc, udp) = demo_with_mavlink_udp();
     // Wait for a valid estimate, then take every position and velocity source away.
     svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
     let token_env = svc.token.clone();

@@ -162,11 +162,14 @@ impl Hub {
                 }
             }
             FrameKind::Event => {
-                let mut e = lock(&self.events);
-                if e.len() >= HISTORY_EVENTS {
-                    e.pop_front();
+                // The snapshot lists the events themselves, kept serialized.
+                if let Some(event) = frame.get("event") {
+                    let mut e = lock(&self.events);
+                    if e.len() >= HISTORY_EVENTS {
+                        e.pop_front();
+                    }
+                    e.push_back(event.to_string().into());
                 }
-                e.push_back(text.clone());
             }
             FrameKind::Status => {}
         }
@@ -192,27 +195,21 @@ impl Hub {
     }
 
     /// The `snapshot` frame for a new client: status, recent ticks and events. The
-    /// stored frames are embedded as parsed JSON.
+    /// stored frames are valid JSON already: joined as they are, not parsed again.
     pub fn snapshot(&self, status: serde_json::Value) -> String {
-        let ticks: Vec<serde_json::Value> = lock(&self.ticks)
+        let ticks = lock(&self.ticks)
             .iter()
-            .filter_map(|(_, f)| serde_json::from_str(f).ok())
-            .collect();
-        let events: Vec<serde_json::Value> = lock(&self.events)
+            .map(|(_, f)| f.as_ref())
+            .collect::<Vec<_>>()
+            .join(",");
+        let events = lock(&self.events)
             .iter()
-            .filter_map(|f| {
-                let v: serde_json::Value = serde_json::from_str(f).ok()?;
-                v.get("event").cloned()
-            })
-            .collect();
-        json!({
-            "type": "snapshot",
-            "protocol": 1,
-            "status": status,
-            "ticks": ticks,
-            "events": events,
-        })
-        .to_string()
+            .map(|f| f.as_ref())
+            .collect::<Vec<_>>()
+            .join(",");
+        format!(
+            "{{\"type\":\"snapshot\",\"protocol\":1,\"status\":{status},\"ticks\":[{ticks}],\"events\":[{events}]}}"
+        )
     }
 
     pub fn stats_json(&self) -> serde_json::Value {

@@ -114,7 +114,7 @@ async fn control(
             return match serde_json::from_slice::<crate::sim::faults::FaultRequest>(&body) {
                 Ok(req) => match inj.inject(&req) {
                     Ok(msg) => {
-                        tracing::warn!("{msg}");
+                        // Logged (and counted) with the other events.
                         s.publish_control_event("fault_injected", Some(&req.sensor), &msg);
                         Json(json!({ "ok": true, "message": msg })).into_response()
                     }

@@ -112,7 +112,6 @@ impl LinkStats {
 /// Counters of the MAVLink output as a whole.
 #[derive(Debug, Default)]
 pub struct MavlinkStats {
-    pub ticks: AtomicU64,
     /// VISION_POSITION_ESTIMATEs handed to the links.
     pub vpe_sent: AtomicU64,
     pub heartbeats: AtomicU64,
@@ -497,7 +496,6 @@ pub async fn run(
         if !due && !heartbeat_due {
             continue;
         }
-        stats.ticks.fetch_add(1, Relaxed);
         let current = pose.borrow_and_update().clone();
         let mut frames: Vec<mavlink::dialects::common::MavMessage> = Vec::new();
         let valid_now = current.as_ref().is_some_and(|p| p.valid);

@@ -802,17 +802,7 @@ fn imu(c: &ImuCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4CsvError> {
     if gyro.is_none() && accel.is_none() {
         return Err(r.unusable(c.dang_dt, "no finite delta with a non-zero dt"));
     }
-    Ok((
-        t,
-        SensorData::Imu(Imu {
-            gyro,
-            accel,
-            orientation: None,
-            gyro_cov: None,
-            accel_cov: None,
-            orientation_cov: None,
-        }),
-    ))
+    Ok((t, SensorData::Imu(Imu::from_rates(gyro, accel))))
 }
 
 fn range(c: &RangeCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4CsvError> {

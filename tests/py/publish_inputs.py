@@ -154,15 +154,10 @@ def mav_messages(mav, i):
 
 
 def publish(connect):
-    import zenoh
     import mavlink_server_json as msj
+    from zenoh_peer import open_peer
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("connect/endpoints", json.dumps([connect]))
-    session = zenoh.open(conf)
+    session = open_peer(connect)
     time.sleep(1.0)  # let the subscriptions propagate
     expected = {}
 

@@ -14,6 +14,7 @@ import json
 import time
 
 from rosbags.typesys import Stores, get_typestore
+from zenoh_peer import open_peer
 
 TOPICS = [
     ("gps/fix", "sensor_msgs/msg/NavSatFix"),
@@ -22,16 +23,6 @@ TOPICS = [
     ("weird/thing", "acme_msgs/msg/Gizmo"),
 ]
 QOS = ":1::0,10"
-
-
-def session(connect):
-    import zenoh
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("connect/endpoints", json.dumps([connect]))
-    return zenoh.open(conf)
 
 
 def token(zid, key, typ):
@@ -45,7 +36,7 @@ def main():
     ap.add_argument("--hold", type=float, default=5.0)
     ap.add_argument("--drop-after", type=float, default=3.0)
     a = ap.parse_args()
-    s = session(a.connect)
+    s = open_peer(a.connect)
     time.sleep(0.5)
     if a.mode == "list":
         keys = [str(r.ok.key_expr) for r in s.liveliness().get("@/*/@ros2_lv/MP/**", timeout=2.0) if r.ok]

@@ -10,10 +10,10 @@ import json
 import time
 
 from rosbags.typesys import Stores, get_typestore
+from zenoh_peer import open_peer
 
 
 def main():
-    import zenoh
     ap = argparse.ArgumentParser()
     ap.add_argument("--connect", required=True)
     ap.add_argument("--seconds", type=float, required=True)
@@ -21,12 +21,7 @@ def main():
     ap.add_argument("--pose-key", default="data_fusion/pose_msg")
     a = ap.parse_args()
     ts = get_typestore(Stores.ROS2_HUMBLE)
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", "[]")
-    conf.insert_json5("connect/endpoints", json.dumps([a.connect]))
-    s = zenoh.open(conf)
+    s = open_peer(a.connect)
     js, cdr, health, events, errors = [], [], 0, 0, []
 
     def on_json(sample):

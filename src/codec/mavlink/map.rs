@@ -211,14 +211,7 @@ fn tof(distance_m: f64) -> Option<Tof> {
 }
 
 fn imu(gyro: Option<Vector3<f64>>, accel: Option<Vector3<f64>>) -> SensorData {
-    SensorData::Imu(Imu {
-        gyro,
-        accel,
-        orientation: None,
-        gyro_cov: None,
-        accel_cov: None,
-        orientation_cov: None,
-    })
+    SensorData::Imu(Imu::from_rates(gyro, accel))
 }
 
 // ------------------------------------------------------------------------ messages
