@@ -61,6 +61,9 @@ pub struct AppState {
     pub zenoh_locators: Vec<String>,
     queue: mpsc::WeakSender<Sample>,
     zenoh_closed: AtomicBool,
+    /// Zenoh routers and peers this session is connected to, refreshed every second.
+    zenoh_routers: AtomicU64,
+    zenoh_peers: AtomicU64,
 }
 
 impl AppState {
@@ -84,6 +87,9 @@ impl AppState {
                     "zid": self.zenoh_zid,
                     "mode": self.config.zenoh.mode,
                     "locators": self.zenoh_locators,
+                    "connect": self.config.zenoh.connect,
+                    "routers": self.zenoh_routers.load(Relaxed),
+                    "peers": self.zenoh_peers.load(Relaxed),
                 },
             },
             "ingest": {
@@ -160,8 +166,9 @@ impl AppState {
             .collect()
     }
 
-    /// An event from a control action, to the event log, the outputs and the dashboard.
-    pub fn publish_control_event(&self, kind: &'static str, source: Option<&str>, message: &str) {
+    /// An event of the service itself (a control action, the Zenoh link), to the event
+    /// log, the outputs and the dashboard.
+    pub fn publish_service_event(&self, kind: &'static str, source: Option<&str>, message: &str) {
         let event = crate::estimator::EstimatorEvent {
             time_us: now_us(),
             kind,
@@ -215,6 +222,8 @@ const HTTP_SEND_BUFFER: usize = 32 * 1024;
 
 /// Publishes the status to websocket clients while the service runs.
 const STATUS_FRAME_INTERVAL: Duration = Duration::from_millis(500);
+/// How often the Zenoh links are looked at.
+const ZENOH_LINK_INTERVAL: Duration = Duration::from_secs(1);
 
 /// Run the service until `shutdown` resolves.
 pub async fn run(
@@ -280,6 +289,8 @@ pub async fn run_with(
         zenoh_locators: locators.clone(),
         queue: tx.downgrade(),
         zenoh_closed: AtomicBool::new(false),
+        zenoh_routers: AtomicU64::new(0),
+        zenoh_peers: AtomicU64::new(0),
     });
     drop(tx);
     let pipeline_config = pipeline::PipelineConfig {
@@ -327,6 +338,7 @@ pub async fn run_with(
         zenoh_out_stats,
     ));
     let status_frames = tokio::spawn(status_frames(state.clone()));
+    let zenoh_links = tokio::spawn(watch_zenoh_links(state.clone(), session.clone()));
 
     let http_addr = listeners.http.local_addr().map_err(RunError::Http)?;
     tracing::info!(
@@ -368,6 +380,7 @@ pub async fn run_with(
     // The last sender was in the subscriber callbacks: the estimator task ends.
     let _ = estimator.await;
     status_frames.abort();
+    zenoh_links.abort();
     // The pose channel closed with the estimator: the outputs end on their own.
     let _ = mavlink.await;
     zenoh_output.abort();
@@ -376,6 +389,59 @@ pub async fn run_with(
         tracing::warn!("closing zenoh session: {e}");
     }
     Ok(())
+}
+
+/// Follow the Zenoh session's links: the counts go to the status, and losing or regaining
+/// every router (client mode) or peer is logged and put in the event log, because with
+/// the link gone every sensor goes stale for a reason no sensor check can name.
+async fn watch_zenoh_links(state: Arc<AppState>, session: zenoh::Session) {
+    let client = state.config.zenoh.mode == crate::config::ZenohMode::Client;
+    let mut every = tokio::time::interval(ZENOH_LINK_INTERVAL);
+    every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut was_linked = None;
+    loop {
+        every.tick().await;
+        let routers: Vec<String> = session
+            .info()
+            .routers_zid()
+            .await
+            .map(|z| z.to_string())
+            .collect();
+        let peers = session.info().peers_zid().await.count();
+        state.zenoh_routers.store(routers.len() as u64, Relaxed);
+        state.zenoh_peers.store(peers as u64, Relaxed);
+        let linked = if client {
+            !routers.is_empty()
+        } else {
+            !routers.is_empty() || peers > 0
+        };
+        if was_linked == Some(linked) {
+            continue;
+        }
+        let what = if client { "router" } else { "router or peer" };
+        let message = match (linked, was_linked) {
+            (true, _) => format!(
+                "Zenoh: connected ({} routers {routers:?}, {peers} peers)",
+                routers.len()
+            ),
+            (false, Some(true)) => format!(
+                "Zenoh: lost every {what} (connect {:?}); reconnecting, no samples until then",
+                state.config.zenoh.connect
+            ),
+            // Not linked yet at start: normal for a peer nobody has found yet.
+            (false, _) => {
+                was_linked = Some(false);
+                continue;
+            }
+        };
+        if linked {
+            tracing::info!("{message}");
+        } else {
+            tracing::warn!("{message}");
+        }
+        state.publish_service_event("zenoh_link", None, &message);
+        was_linked = Some(linked);
+    }
 }
 
 /// The `status` frame for websocket clients, twice a second.
@@ -393,24 +459,27 @@ async fn status_frames(state: Arc<AppState>) {
     }
 }
 
-/// Resolves on SIGINT or SIGTERM.
-pub async fn shutdown_signal() {
-    let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
-    #[cfg(unix)]
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
+/// Resolves on SIGINT or SIGTERM. The handlers are installed when this is called, not
+/// when the future is first polled: in a container skyfuse is PID 1, which the kernel
+/// shields from signals it has no handler for, so a SIGTERM that arrived before the
+/// first poll (while waiting for a Zenoh router, say) would be lost and `docker stop`
+/// would end in SIGKILL.
+pub fn shutdown_signal() -> impl std::future::Future<Output = ()> + Send + 'static {
+    use tokio::signal::unix::{signal, SignalKind};
+    async fn recv(s: Option<tokio::signal::unix::Signal>) {
+        match s {
+            Some(mut s) => {
                 s.recv().await;
             }
-            Err(_) => std::future::pending::<()>().await,
+            None => std::future::pending::<()>().await,
         }
-    };
-    #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
-    tokio::select! {
-        _ = ctrl_c => {},
-        _ = term => {},
+    }
+    let term = signal(SignalKind::terminate()).ok();
+    let int = signal(SignalKind::interrupt()).ok();
+    async move {
+        tokio::select! {
+            _ = recv(term) => {},
+            _ = recv(int) => {},
+        }
     }
 }

@@ -2,7 +2,7 @@
 //! binds its listeners and calls into [`crate::app`] or [`crate::sim`].
 
 use crate::app::{self, Listeners};
-use crate::config::{Config, ZenohMode};
+use crate::config::{Config, ZenohConfig, ZenohMode};
 use crate::estimator::Mode;
 use crate::ingest::zenoh_in;
 use crate::offline;
@@ -54,6 +54,19 @@ pub enum Command {
     },
     /// Check a config file and print what it configures.
     CheckConfig { file: PathBuf },
+    /// Ask the running service's /healthz; exit code 0 if it answers 200, else 1
+    /// (the container image's HEALTHCHECK). The address comes from the same config
+    /// file and environment as `run`.
+    Healthcheck {
+        #[arg(short, long, env = "SKYFUSE_CONFIG")]
+        config: Option<PathBuf>,
+        /// Address to ask instead of the config's `[http] bind`, e.g. 127.0.0.1:8080.
+        #[arg(long, value_name = "ADDR")]
+        http: Option<String>,
+        /// Seconds to wait for the answer.
+        #[arg(long, default_value_t = 2.0)]
+        timeout: f64,
+    },
     /// Simulate a flight: publish its sensor samples to Zenoh for another skyfuse
     /// instance, or with `--out` run it offline through the estimator and write TUM files.
     Sim {
@@ -176,6 +189,22 @@ pub fn init_logging() {
 /// Entry point of the binary.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Command::Healthcheck {
+        config,
+        http,
+        timeout,
+    } = &cli.command
+    {
+        // Quiet and quick: no logging, no multi-threaded runtime. Exit code 1, not 2,
+        // for unhealthy: Docker reserves 2.
+        return match healthcheck(config.as_deref(), http.as_deref(), *timeout) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("unhealthy: {e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     init_logging();
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -187,7 +216,11 @@ pub fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    match rt.block_on(dispatch(cli.command)) {
+    let result = rt.block_on(dispatch(cli.command));
+    // Do not wait for a worker still blocked in Zenoh's open (stopped while waiting for
+    // the router): everything that matters has been shut down by now.
+    rt.shutdown_timeout(std::time::Duration::from_millis(200));
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
@@ -196,8 +229,68 @@ pub fn main() -> ExitCode {
     }
 }
 
+/// GET /healthz from the service at `http` (default: the config's bind address, with
+/// an unspecified host such as 0.0.0.0 asked on loopback).
+fn healthcheck(
+    config: Option<&std::path::Path>,
+    http: Option<&str>,
+    timeout_s: f64,
+) -> Result<(), String> {
+    use std::io::{Read, Write};
+    let bind = match http {
+        Some(h) => h.to_string(),
+        None => {
+            Config::load(config, env_vars())
+                .map_err(|e| e.to_string())?
+                .http
+                .bind
+        }
+    };
+    let addr = probe_addr(&bind)?;
+    let timeout = std::time::Duration::from_secs_f64(timeout_s.clamp(0.1, 60.0));
+    let mut stream = std::net::TcpStream::connect_timeout(&addr, timeout)
+        .map_err(|e| format!("cannot connect to {addr}: {e}"))?;
+    let io = |e: std::io::Error| format!("{addr}: {e}");
+    stream.set_read_timeout(Some(timeout)).map_err(io)?;
+    stream.set_write_timeout(Some(timeout)).map_err(io)?;
+    write!(stream, "GET /healthz HTTP/1.0\r\nHost: {addr}\r\n\r\n").map_err(io)?;
+    let mut answer = Vec::new();
+    stream.take(4096).read_to_end(&mut answer).map_err(io)?;
+    let answer = String::from_utf8_lossy(&answer);
+    match http_status(&answer) {
+        Some(200) => Ok(()),
+        Some(code) => Err(format!(
+            "{addr}/healthz answered {code}: {}",
+            answer.split("\r\n\r\n").nth(1).unwrap_or("").trim()
+        )),
+        None => Err(format!("{addr}/healthz: not an HTTP answer")),
+    }
+}
+
+/// The address to probe for a bind address: a wildcard host is asked on loopback.
+fn probe_addr(bind: &str) -> Result<std::net::SocketAddr, String> {
+    let mut addr: std::net::SocketAddr = bind
+        .parse()
+        .map_err(|e| format!("http address {bind:?}: {e}"))?;
+    if addr.ip().is_unspecified() {
+        addr.set_ip(match addr {
+            std::net::SocketAddr::V4(_) => std::net::Ipv4Addr::LOCALHOST.into(),
+            std::net::SocketAddr::V6(_) => std::net::Ipv6Addr::LOCALHOST.into(),
+        });
+    }
+    Ok(addr)
+}
+
+/// The status code of an HTTP/1.x response.
+fn http_status(response: &str) -> Option<u16> {
+    let mut words = response.lines().next()?.split_whitespace();
+    words.next().filter(|v| v.starts_with("HTTP/1."))?;
+    words.next()?.parse().ok()
+}
+
 async fn dispatch(cmd: Command) -> Result<(), String> {
     match cmd {
+        Command::Healthcheck { .. } => Err("healthcheck runs before the runtime".into()),
         Command::CheckConfig { file } => {
             let c = Config::load(Some(&file), env_vars()).map_err(|e| e.to_string())?;
             println!(
@@ -283,9 +376,10 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             let scn = scenario::scenario(&scenario)
                 .ok_or_else(|| format!("unknown scenario {scenario:?} (see --list)"))?;
             let c = load(config.as_deref(), &net)?;
-            let session = zenoh_in::open_session(&c.zenoh)
-                .await
-                .map_err(|e| e.to_string())?;
+            let mut shutdown = Box::pin(app::shutdown_signal());
+            let Some(session) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
+                return Ok(());
+            };
             let sensors = scn.streams.iter().map(|s| s.input_id.to_string()).collect();
             let sim = Simulator::with_profile(
                 &scn.streams,
@@ -295,14 +389,8 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
                 Arc::new(FaultSchedule::new(sensors, scn.faults.clone())),
             );
             let counters = Arc::new(publish::PublishCounters::default());
-            let n = publish::run_publisher(
-                session.clone(),
-                Arc::new(c),
-                sim,
-                counters,
-                app::shutdown_signal(),
-            )
-            .await;
+            let n =
+                publish::run_publisher(session.clone(), Arc::new(c), sim, counters, shutdown).await;
             tracing::info!(published = n, "sim finished");
             let _ = session.close().await;
             Ok(())
@@ -317,12 +405,39 @@ async fn serve(
     let http = tokio::net::TcpListener::bind(&c.http.bind)
         .await
         .map_err(|e| format!("cannot listen for HTTP on {}: {e}", c.http.bind))?;
-    let zenoh = zenoh_in::open_session(&c.zenoh)
-        .await
-        .map_err(|e| e.to_string())?;
+    let mut shutdown = Box::pin(shutdown);
+    let Some(zenoh) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
+        return Ok(());
+    };
     app::run(c, Listeners { http, zenoh }, shutdown)
         .await
         .map_err(|e| e.to_string())
+}
+
+/// Open the Zenoh session, or give up cleanly if a shutdown signal comes first: a client
+/// waits for its router (see `zenoh_in::zenoh_config`), and `docker stop` must still
+/// end it with exit code 0.
+async fn open_zenoh(
+    cfg: &ZenohConfig,
+    shutdown: &mut (impl std::future::Future<Output = ()> + Unpin),
+) -> Result<Option<zenoh::Session>, String> {
+    if cfg.mode == ZenohMode::Client {
+        tracing::info!(connect = ?cfg.connect, "connecting to the Zenoh router (retrying until it answers)");
+    }
+    // Zenoh's open blocks its thread while it retries, so it gets a worker of its own
+    // and this thread stays free to see the signal.
+    let cfg = cfg.clone();
+    let open = tokio::spawn(async move { zenoh_in::open_session(&cfg).await });
+    tokio::select! {
+        joined = open => match joined {
+            Ok(session) => session.map(Some).map_err(|e| e.to_string()),
+            Err(e) => Err(format!("opening the Zenoh session: {e}")),
+        },
+        _ = shutdown => {
+            tracing::info!("stopped before the Zenoh session opened");
+            Ok(None)
+        }
+    }
 }
 
 /// The demo: the default config on loopback only (no multicast, Zenoh on a free port),
@@ -692,4 +807,35 @@ fn replay(
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn healthcheck_asks_a_wildcard_bind_on_loopback() {
+        assert_eq!(
+            probe_addr("0.0.0.0:8080").unwrap().to_string(),
+            "127.0.0.1:8080"
+        );
+        assert_eq!(probe_addr("[::]:9000").unwrap().to_string(), "[::1]:9000");
+        assert_eq!(
+            probe_addr("10.1.2.3:80").unwrap().to_string(),
+            "10.1.2.3:80"
+        );
+        let e = probe_addr("dashboard:8080").unwrap_err();
+        assert!(e.contains("dashboard:8080"), "{e}");
+    }
+
+    #[test]
+    fn healthcheck_reads_the_status_code() {
+        assert_eq!(http_status("HTTP/1.1 200 OK\r\n\r\nok\n"), Some(200));
+        assert_eq!(
+            http_status("HTTP/1.0 503 Service Unavailable\r\n\r\nzenoh session closed\n"),
+            Some(503)
+        );
+        assert_eq!(http_status("SSH-2.0-OpenSSH_9.2\r\n"), None);
+        assert_eq!(http_status(""), None);
+    }
 }

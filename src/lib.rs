@@ -25,6 +25,7 @@
 //! - [`http`]: the JSON API, the websocket hub and the page.
 //! - [`app`]: `run(config, listeners, shutdown)`, wiring it all together.
 //! - [`cli`]: the command line; `main.rs` only calls [`cli::main`].
+//! - [`sync`]: the one locking rule (a poisoned lock still gives its data).
 
 pub mod app;
 pub mod cli;
@@ -44,3 +45,4 @@ pub mod replay;
 pub mod ros_graph;
 pub mod sample;
 pub mod sim;
+pub mod sync;

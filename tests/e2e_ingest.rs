@@ -1,11 +1,12 @@
 //! End to end: the service binary on free ports, real producers (Python eclipse-zenoh
 //! sessions publishing rosbags-serialised ROS 2 / ROS 1 bytes, mavlink-server JSON from
 //! the reference Codec, pymavlink frames, skyfuse JSON), and `/api/v1/status` checked
-//! to count every sample for the right sensor.
+//! to count every sample for the right sensor; as a Zenoh client, waiting for its
+//! router and reconnecting after the router restarts.
 
 mod common;
 use common::*;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 fn count(s: &serde_json::Value, field: &str) -> u64 {
     s[field].as_u64().unwrap_or(u64::MAX)
@@ -139,4 +140,121 @@ fn check_config_names_unknown_keys_and_missing_files() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(String::from_utf8_lossy(&out.stdout).contains("gps/fix"));
+}
+
+/// A router on `port` (Python eclipse-zenoh in router mode) publishing an IMU for
+/// `seconds`, in a thread; joins to the number of samples it published.
+fn router(port: u16, seconds: f64) -> std::thread::JoinHandle<u64> {
+    std::thread::spawn(move || {
+        let out = run_py(
+            "zenoh_router.py",
+            &[
+                "--listen",
+                &format!("tcp/127.0.0.1:{port}"),
+                "--seconds",
+                &seconds.to_string(),
+            ],
+        );
+        let v: serde_json::Value = serde_json::from_str(out.trim()).expect("router JSON");
+        v["published"].as_u64().unwrap_or(0)
+    })
+}
+
+fn client_of(router_port: u16) -> Service {
+    Service::spawn(
+        &[
+            "run",
+            "--mode",
+            "client",
+            "--connect",
+            &format!("tcp/127.0.0.1:{router_port}"),
+        ],
+        &[],
+    )
+}
+
+fn imu_received(svc: &Service) -> u64 {
+    sensor(&svc.get_json("/api/v1/status"), "imu")["received"]
+        .as_u64()
+        .unwrap_or(0)
+}
+
+#[test]
+fn a_zenoh_client_waits_for_its_router_and_reconnects_after_a_router_restart() {
+    let router_port = free_port();
+    let mut svc = client_of(router_port);
+    // No router yet: skyfuse waits (a container started beside its router), it does not exit.
+    std::thread::sleep(Duration::from_millis(2500));
+    assert!(
+        svc.running(),
+        "exited without a router:\n{}",
+        svc.log_text()
+    );
+    assert!(
+        svc.log_text().contains("connecting to the Zenoh router"),
+        "{}",
+        svc.log_text()
+    );
+
+    let first = router(router_port, 8.0);
+    svc.wait_healthy(Duration::from_secs(15));
+    let s = svc.wait_status(Duration::from_secs(10), |s| {
+        sensor(s, "imu")["received"].as_u64().unwrap_or(0) > 50
+    });
+    assert!(
+        sensor(&s, "imu")["received"].as_u64().unwrap_or(0) > 50,
+        "{s}"
+    );
+    let s = svc.wait_status(Duration::from_secs(3), |s| {
+        s["service"]["zenoh"]["routers"] == 1
+    });
+    assert_eq!(s["service"]["zenoh"]["routers"], 1, "{}", s["service"]);
+    let published = first.join().expect("router thread");
+    assert!(published > 300, "router published {published}");
+
+    // The router is gone: skyfuse stays up, nothing arrives.
+    std::thread::sleep(Duration::from_millis(1500));
+    assert!(svc.running(), "exited when the router went away");
+    let before = imu_received(&svc);
+    std::thread::sleep(Duration::from_millis(1000));
+    assert_eq!(imu_received(&svc), before, "samples without a router");
+    // ... and says why: the link, not the sensors.
+    let s = svc.get_json("/api/v1/status");
+    assert_eq!(s["service"]["zenoh"]["routers"], 0, "{}", s["service"]);
+    assert!(
+        svc.log_text().contains("Zenoh: lost every router"),
+        "{}",
+        svc.log_text()
+    );
+
+    // The router comes back on the same endpoint: the same process resumes ingest.
+    let second = router(router_port, 12.0);
+    let restarted = Instant::now();
+    let s = svc.wait_status(Duration::from_secs(12), |s| {
+        sensor(s, "imu")["received"].as_u64().unwrap_or(0) > before + 20
+    });
+    let resumed = restarted.elapsed();
+    assert!(
+        sensor(&s, "imu")["received"].as_u64().unwrap_or(0) > before + 20,
+        "no samples after the router came back: {s}\n{}",
+        svc.log_text()
+    );
+    eprintln!("router back: samples again after {resumed:.2?}");
+    let (status, took) = svc.terminate();
+    assert!(status.success(), "{status}");
+    assert!(took < Duration::from_secs(2), "stop took {took:?}");
+    second.join().expect("router thread");
+}
+
+#[test]
+fn sigterm_while_waiting_for_the_router_exits_cleanly() {
+    let mut svc = client_of(free_port());
+    std::thread::sleep(Duration::from_millis(1500));
+    assert!(svc.running(), "{}", svc.log_text());
+    let (status, took) = svc.terminate();
+    assert!(status.success(), "{status}: {}", svc.log_text());
+    assert!(took < Duration::from_secs(2), "stop took {took:?}");
+    assert!(svc
+        .log_text()
+        .contains("stopped before the Zenoh session opened"));
 }

@@ -5,10 +5,11 @@
 //! Frames are serialized once and shared (`Arc<str>`) by every client. `tick` frames are
 //! downsampled per client (`subscribe` message); `status` and `event` frames are not.
 
+use crate::sync::lock;
 use serde_json::json;
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use tokio::sync::Notify;
 
 /// Frames a client may have waiting before the oldest is dropped.
@@ -108,11 +109,6 @@ impl ClientQueue {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
-}
-
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    // A panicking holder cannot leave these queues inconsistent: keep going.
-    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Shared by the data path (publishers) and the websocket handlers (clients).

@@ -115,7 +115,7 @@ async fn control(
                 Ok(req) => match inj.inject(&req) {
                     Ok(msg) => {
                         // Logged (and counted) with the other events.
-                        s.publish_control_event("fault_injected", Some(&req.sensor), &msg);
+                        s.publish_service_event("fault_injected", Some(&req.sensor), &msg);
                         Json(json!({ "ok": true, "message": msg })).into_response()
                     }
                     Err(e) => bad(e),

@@ -178,9 +178,7 @@ impl InputState {
     }
 
     fn history(&self) -> std::sync::MutexGuard<'_, InputHistory> {
-        // A poisoned lock only means another callback panicked mid-update; the
-        // counters are still usable.
-        self.history.lock().unwrap_or_else(|p| p.into_inner())
+        crate::sync::lock(&self.history)
     }
 
     pub fn status(&self, now: Micros) -> InputStatus {

@@ -46,6 +46,14 @@ pub fn zenoh_config(cfg: &ZenohConfig) -> Result<zenoh::Config, ZenohError> {
         ZenohMode::Client => "\"client\"",
     };
     z.insert_json5("mode", mode).map_err(err)?;
+    if cfg.mode == ZenohMode::Client && cfg.config_file.is_none() {
+        // Zenoh's client default is to give up at once when no router answers. A service
+        // (in a container, started beside its router) waits instead, retrying with
+        // Zenoh's back-off (1 s growing to 4 s), as routers and peers do by default.
+        z.insert_json5("connect/timeout_ms", "-1").map_err(err)?;
+        z.insert_json5("connect/exit_on_failure", "false")
+            .map_err(err)?;
+    }
     let list = |v: &Vec<String>| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
     if !cfg.listen.is_empty() {
         z.insert_json5("listen/endpoints", &list(&cfg.listen))

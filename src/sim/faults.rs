@@ -2,9 +2,10 @@
 //! demo's control API. A fault changes what a sensor model reports, never the truth.
 
 use crate::sample::{GnssFixType, SensorData};
+use crate::sync::lock;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
-use std::sync::{Mutex, MutexGuard};
+use std::sync::Mutex;
 
 /// What goes wrong.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -82,10 +83,6 @@ pub struct FaultSchedule {
     now_s: Mutex<f64>,
     /// Input ids the simulator publishes (to refuse unknown sensors).
     sensors: Vec<String>,
-}
-
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 impl FaultSchedule {

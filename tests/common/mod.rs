@@ -66,6 +66,13 @@ impl Service {
     /// Start `skyfuse <args>` with Zenoh on a free loopback port (no multicast) and
     /// HTTP on another; waits for /healthz.
     pub fn start(args: &[&str], env: &[(&str, &str)]) -> Service {
+        let mut s = Service::spawn(args, env);
+        s.wait_healthy(Duration::from_secs(30));
+        s
+    }
+
+    /// As `start`, without waiting for anything.
+    pub fn spawn(args: &[&str], env: &[(&str, &str)]) -> Service {
         let http_port = free_port();
         let zenoh_port = free_port();
         let log = std::env::temp_dir().join(format!("skyfuse-test-{http_port}.log"));
@@ -89,15 +96,18 @@ impl Service {
             cmd.env(k, v);
         }
         let child = cmd.spawn().expect("spawn skyfuse");
-        let mut s = Service {
+        Service {
             child,
             http_port,
             zenoh_port,
             log,
             token,
-        };
-        s.wait_healthy(Duration::from_secs(30));
-        s
+        }
+    }
+
+    /// Whether the process is still running.
+    pub fn running(&mut self) -> bool {
+        matches!(self.child.try_wait(), Ok(None))
     }
 
     pub fn zenoh_endpoint(&self) -> String {
@@ -108,7 +118,7 @@ impl Service {
         std::fs::read_to_string(&self.log).unwrap_or_default()
     }
 
-    fn wait_healthy(&mut self, timeout: Duration) {
+    pub fn wait_healthy(&mut self, timeout: Duration) {
         let start = Instant::now();
         while start.elapsed() < timeout {
             if let Ok(Some(status)) = self.child.try_wait() {

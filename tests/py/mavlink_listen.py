@@ -3,7 +3,7 @@
 and print one JSON summary: every VISION_POSITION_ESTIMATE (arrival time, fields),
 HEARTBEATs (sender and type), and any message pymavlink could not decode.
 
-  mavlink_listen.py --port P --seconds S
+  mavlink_listen.py --port P --seconds S [--host 0.0.0.0]
 """
 import argparse
 import json
@@ -19,8 +19,9 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--port", type=int, required=True)
     ap.add_argument("--seconds", type=float, required=True)
+    ap.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: from containers)")
     a = ap.parse_args()
-    conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{a.port}", dialect="common")
+    conn = mavutil.mavlink_connection(f"udpin:{a.host}:{a.port}", dialect="common")
     start = time.time()
     vpe, hb, other, bad = [], [], {}, 0
     while time.time() - start < a.seconds:
