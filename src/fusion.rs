@@ -71,6 +71,7 @@ impl Fusion {
             return vec![];
         }
         self.last_eval_us = Some(now_us);
+        self.est.observe_time(now_us);
         if self
             .last_status_us
             .is_none_or(|l| now_us < l || now_us - l >= 100_000)

@@ -255,9 +255,9 @@ pub async fn run(
                 }
                 let events = fusion.tick(now);
                 publish_events(&shared, &events);
-                if !events.is_empty() {
-                    refresh_status(&shared, &fusion);
-                }
+                // Also without events: with no samples arriving this is what moves the
+                // status on (staleness, an estimate turning invalid).
+                refresh_status(&shared, &fusion);
             }
             Some((cmd, reply)) = commands.recv() => {
                 let now = fusion.est.state_time().unwrap_or_else(crate::ingest::now_us);

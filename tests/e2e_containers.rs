@@ -250,8 +250,14 @@ fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_
     );
     assert_eq!(podman.inspect(IMAGE, "{{.Config.User}}"), "skyfuse");
     assert!(podman
-        .inspect(IMAGE, "{{json .Config.Healthcheck}}")
-        .contains("healthcheck"));
+        .run(&[
+            "image",
+            "inspect",
+            "--format",
+            "{{json .HealthCheck}}",
+            IMAGE
+        ])
+        .contains(r#"["CMD","/usr/local/bin/skyfuse","healthcheck"]"#));
 
     // The deployment: ports on the host chosen free; MAVLink to a UDP port on the host.
     let http_port = free_port();

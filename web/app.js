@@ -674,6 +674,13 @@
       }
     }
     const svc = st.service || {};
+    const z = svc.zenoh || {};
+    if (z.mode) {
+      // A client without its router receives nothing: say so here, not only as stale tiles.
+      const lost = z.mode === 'client' && z.routers === 0;
+      const links = `${z.routers ?? '?'} router${z.routers === 1 ? '' : 's'}, ${z.peers ?? '?'} peer${z.peers === 1 ? '' : 's'}`;
+      rows.push(['Zenoh', `${z.mode} · ${lost ? 'no router, reconnecting' : links}`, lost ? 'full bad' : null]);
+    }
     rows.push(['uptime', fmtDur(svc.uptime_s)]);
     const cells = [];
     for (const [k, v, cls] of rows) cells.push(h('dt', null, k), h('dd', cls || null, v));

@@ -831,11 +831,13 @@ impl Core {
             .collect()
     }
 
-    fn validity(&self, cfg: &EstimatorConfig) -> Option<String> {
+    /// Why the estimate is not valid at time `now` (None: valid). `now` is at least the
+    /// newest sample's time, later when the caller has seen time pass without samples.
+    fn validity(&self, cfg: &EstimatorConfig, now: Option<i64>) -> Option<String> {
         if !self.initialised() {
             return Some("not initialised".into());
         }
-        let t = self.t.unwrap_or(0);
+        let t = self.t.unwrap_or(0).max(now.unwrap_or(i64::MIN));
         if let Some(ekf) = self.ekf.as_ref() {
             if !ekf.is_finite() {
                 return Some("non-finite state".into());
@@ -912,6 +914,8 @@ pub struct Estimator {
     emitted: BTreeSet<(i64, &'static str, Option<String>, String)>,
     late_dropped: u64,
     late_event_t: Option<i64>,
+    /// The caller's clock when it last looked without a sample (see `observe_time`).
+    observed_t: Option<i64>,
 }
 
 /// Snapshot at least this often without IMU samples, µs.
@@ -936,7 +940,16 @@ impl Estimator {
             emitted: BTreeSet::new(),
             late_dropped: 0,
             late_event_t: None,
+            observed_t: None,
         }
+    }
+
+    /// Time has reached `now_us` (host clock) whether or not samples came: validity is
+    /// judged at this time, so an estimate whose sources all went silent (a lost Zenoh
+    /// link) turns invalid after `aiding_timeout_ms` instead of staying valid, frozen.
+    /// The state is not touched; the next sample predicts across the gap as always.
+    pub fn observe_time(&mut self, now_us: i64) {
+        self.observed_t = Some(now_us);
     }
 
     pub fn config(&self) -> &EstimatorConfig {
@@ -1099,7 +1112,7 @@ impl Estimator {
             let e = c.ekf.as_ref()?;
             (c.pred_t?, e.pos(), e.vel(), e.cov3(IDX_P), e.cov3(IDX_V))
         };
-        let mut invalid_reason = c.validity(&self.cfg);
+        let mut invalid_reason = c.validity(&self.cfg, self.observed_t);
         let finite = position
             .iter()
             .chain(velocity.iter())
@@ -1223,7 +1236,7 @@ impl Estimator {
 
     pub fn state_summary(&self) -> EstimatorStatus {
         let c = &self.core;
-        let invalid_reason = c.validity(&self.cfg);
+        let invalid_reason = c.validity(&self.cfg, self.observed_t);
         let mut sources = c.stats.clone();
         for (s, st) in sources.iter_mut() {
             st.usable = self.usable.get(s).is_none_or(|u| u.0);

@@ -626,9 +626,11 @@ impl SensorHealth {
                 t
             }
         };
-        // Leaving no_data/stale needs no wait (data is back); going worse waits
-        // `confirm_ms`, getting better waits `recover_ms`.
-        let wait_ms = if matches!(self.state, HealthState::NoData) {
+        // Leaving no_data/stale needs no wait: data is back, and what it shows is judged
+        // by the checks from its first sample (a link that came back after a Zenoh
+        // router restart must not hold every sensor out for `recover_ms`). Going worse
+        // waits `confirm_ms`, getting better waits `recover_ms`.
+        let wait_ms = if matches!(self.state, HealthState::NoData | HealthState::Stale) {
             0.0
         } else if raw.rank() > self.state.rank() {
             if matches!(raw, HealthState::Stale | HealthState::Disabled) {

@@ -84,6 +84,10 @@ pub const NAMES: &[(&str, &str)] = &[
         "figure-eight; the T265 stops sending from 40 to 55 s",
     ),
     ("sensor-nan", "figure-eight; GPS sends NaN from 40 to 50 s"),
+    (
+        "link-loss",
+        "figure-eight; nothing arrives from 40 to 46 s (the Zenoh router restarts)",
+    ),
 ];
 
 /// Look up a scenario by name.
@@ -130,6 +134,14 @@ pub fn scenario(name: &str) -> Option<Scenario> {
             Profile::Indoor,
             streams_without(&["gps"]),
             vec![fault("flow", FaultKind::TofRange, 40.0, 50.0)],
+        ),
+        "link-loss" => (
+            Profile::Figure8,
+            all,
+            DEMO_STREAMS
+                .iter()
+                .map(|st| fault(st.input_id, FaultKind::Stop, 40.0, 46.0))
+                .collect(),
         ),
         "sensor-stop" => (
             Profile::Figure8,
