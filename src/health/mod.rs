@@ -11,7 +11,8 @@
 //! its hold time. The sensor's raw state is the worst active condition (or `stale`
 //! without data). A worse raw state is adopted once it has lasted `confirm_ms`; a better
 //! one only after `recover_ms` — a recovered sensor is taken back only after it has been
-//! good for that long.
+//! good for that long — except out of `stale`/`no_data`: data that is back is judged
+//! by the checks from its first sample.
 
 mod checks;
 
@@ -76,7 +77,8 @@ pub struct Reason {
 pub struct HealthConfig {
     /// A worse state is adopted after it has lasted this long, ms.
     pub confirm_ms: f64,
-    /// A better state is adopted (a sensor taken back) after this long, ms.
+    /// A better state is adopted (a sensor taken back) after this long, ms; leaving
+    /// `stale` or `no_data` needs no wait.
     pub recover_ms: f64,
     /// A condition stays active this long after it was last seen, ms.
     pub hold_ms: f64,
