@@ -19,6 +19,7 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 const IMAGE: &str = "localhost/skyfuse:e2e";
+const BUILD_STAGE_IMAGE: &str = "localhost/skyfuse-build-stage:e2e";
 const BASE_IMAGE: &str = "docker.io/library/debian:bookworm-slim";
 const CA_BUNDLE: &str = "/etc/ssl/certs/ca-certificates.crt";
 
@@ -208,9 +209,11 @@ fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_
     let registry = podman.cache.join("cargo-registry");
     std::fs::create_dir_all(&registry).expect("cargo registry cache dir");
     let started = Instant::now();
-    let build = podman
-        .command("podman")
-        .args([
+    // The build stage gets a tag of its own, so that pruning the images the previous run
+    // left behind keeps its cached layers (Zenoh compiled) for the next run.
+    for (target, tag) in [(Some("build"), BUILD_STAGE_IMAGE), (None, IMAGE)] {
+        let mut cmd = podman.command("podman");
+        cmd.args([
             "build",
             "--pull=never",
             "--format",
@@ -222,14 +225,23 @@ fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_
             "-f",
             "docker/Dockerfile",
             "-t",
-            IMAGE,
-            ".",
-        ])
-        .stdin(Stdio::null())
-        .status()
-        .expect("podman build");
-    assert!(build.success(), "podman build -f docker/Dockerfile failed");
+            tag,
+        ]);
+        if let Some(t) = target {
+            cmd.args(["--target", t]);
+        }
+        let build = cmd
+            .arg(".")
+            .stdin(Stdio::null())
+            .status()
+            .expect("podman build");
+        assert!(
+            build.success(),
+            "podman build -f docker/Dockerfile ({tag}) failed"
+        );
+    }
     let build_time = started.elapsed();
+    let _ = podman.output(&["image", "prune", "-f"]);
     let size = |image: &str| -> f64 {
         podman
             .inspect(image, "{{.Size}}")

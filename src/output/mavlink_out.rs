@@ -311,90 +311,90 @@ async fn udp_in(addr: String, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<Link
     }
 }
 
-async fn tcp_out(addr: String, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
-    let mut delay = BACKOFF_MIN;
-    loop {
-        let connect = tokio::time::timeout(
-            Duration::from_secs(3),
-            tokio::net::TcpStream::connect(&addr),
-        )
-        .await;
-        let mut stream = match connect {
-            Ok(Ok(s)) => s,
-            Ok(Err(e)) => {
-                stats.error(format!("tcpout:{addr}: {e}"));
-                if !back_off(&mut delay, &mut rx, &stats).await {
-                    return;
+async fn tcp_out(addr: String, rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+    let open = || {
+        let addr = addr.clone();
+        async move {
+            let connect = tokio::net::TcpStream::connect(&addr);
+            match tokio::time::timeout(Duration::from_secs(3), connect).await {
+                Ok(Ok(s)) => {
+                    let _ = s.set_nodelay(true);
+                    Ok(s)
                 }
-                continue;
+                Ok(Err(e)) => Err(e.to_string()),
+                Err(_) => Err("connect timed out".to_string()),
             }
-            Err(_) => {
-                stats.error(format!("tcpout:{addr}: connect timed out"));
-                if !back_off(&mut delay, &mut rx, &stats).await {
-                    return;
-                }
-                continue;
-            }
-        };
-        let _ = stream.set_nodelay(true);
-        tracing::info!("MAVLink output tcpout:{addr}: connected");
-        stats.connected.store(true, Relaxed);
-        delay = BACKOFF_MIN;
-        // Frames queued while disconnected are old: a pose must be fresh or not at all.
-        drain_dropped(&mut rx, &stats);
-        loop {
-            let Some(f) = rx.recv().await else { return };
-            if let Err(e) = stream.write_all(&f).await {
-                stats.error(format!("tcpout:{addr}: {e}"));
-                stats.connected.store(false, Relaxed);
-                break;
-            }
-            stats.sent.fetch_add(1, Relaxed);
         }
-    }
+    };
+    stream_link(format!("tcpout:{addr}"), open, rx, stats).await
 }
 
-async fn serial(path: String, baud: u32, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+async fn serial(path: String, baud: u32, rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+    let open = || {
+        let path = path.clone();
+        async move {
+            // `stty` sets the line raw at the baud rate (no termios crate needed).
+            let configured = tokio::process::Command::new("stty")
+                .args(["-F", &path, &baud.to_string(), "raw", "-echo"])
+                .output()
+                .await;
+            match configured {
+                Ok(o) if o.status.success() => tokio::fs::OpenOptions::new()
+                    .write(true)
+                    .open(&path)
+                    .await
+                    .map_err(|e| e.to_string()),
+                Ok(o) => Err(format!(
+                    "stty failed: {}",
+                    String::from_utf8_lossy(&o.stderr).trim()
+                )),
+                Err(e) => Err(format!("cannot run stty: {e}")),
+            }
+        }
+    };
+    stream_link(format!("serial:{path}:{baud}"), open, rx, stats).await
+}
+
+/// A byte-stream link (TCP, serial): open it, write frames until a write fails, then
+/// back off and open it again. Frames queued while it was down are dropped and counted:
+/// a pose must be fresh or not at all.
+async fn stream_link<W, Open, Opening>(
+    name: String,
+    mut open: Open,
+    mut rx: mpsc::Receiver<Arc<[u8]>>,
+    stats: Arc<LinkStats>,
+) where
+    W: tokio::io::AsyncWrite + Unpin,
+    Open: FnMut() -> Opening,
+    Opening: std::future::Future<Output = Result<W, String>>,
+{
     let mut delay = BACKOFF_MIN;
     loop {
-        // `stty` sets the line raw at the baud rate (no termios crate needed).
-        let configured = tokio::process::Command::new("stty")
-            .args(["-F", &path, &baud.to_string(), "raw", "-echo"])
-            .output()
-            .await;
-        let opened = match configured {
-            Ok(o) if o.status.success() => tokio::fs::OpenOptions::new()
-                .write(true)
-                .open(&path)
-                .await
-                .map_err(|e| e.to_string()),
-            Ok(o) => Err(format!(
-                "stty failed: {}",
-                String::from_utf8_lossy(&o.stderr).trim()
-            )),
-            Err(e) => Err(format!("cannot run stty: {e}")),
-        };
-        let mut file = match opened {
-            Ok(f) => f,
+        let mut link = match open().await {
+            Ok(w) => w,
             Err(e) => {
-                stats.error(format!("serial:{path}:{baud}: {e}"));
+                stats.error(format!("{name}: {e}"));
                 if !back_off(&mut delay, &mut rx, &stats).await {
                     return;
                 }
                 continue;
             }
         };
+        tracing::info!("MAVLink output {name}: connected");
         stats.connected.store(true, Relaxed);
         delay = BACKOFF_MIN;
         drain_dropped(&mut rx, &stats);
         loop {
             let Some(f) = rx.recv().await else { return };
-            if let Err(e) = file.write_all(&f).await {
-                stats.error(format!("serial:{path}: {e}"));
+            let written = async {
+                link.write_all(&f).await?;
+                link.flush().await
+            };
+            if let Err(e) = written.await {
+                stats.error(format!("{name}: {e}"));
                 stats.connected.store(false, Relaxed);
                 break;
             }
-            let _ = file.flush().await;
             stats.sent.fetch_add(1, Relaxed);
         }
     }
