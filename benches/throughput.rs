@@ -259,6 +259,100 @@ fn replay_bench() {
     println!("CSV read: {:.2} s. Fusion (flow + range + attitude): {m:.0} samples/s ({lo:.0}–{hi:.0}).\n", read_s);
 }
 
+/// The whole ingest path of one ROS 2 sample (`Ingest::accept`: counters, the announced
+/// type looked up in the bridge-topic table, decode, validation, time checks), with the
+/// table empty and holding 100 bridge topics, beside the bare decode of the same bytes.
+fn ingest_bench() {
+    use skyfuse::ingest::Ingest;
+    use skyfuse::ros_graph::TopicEntry;
+    println!("## Ingest path, ROS 2 sensor_msgs/Imu (samples/s, median of {REPS}; min–max)\n");
+    println!("| path | samples/s | spread |");
+    println!("|---|---|---|");
+    let config = skyfuse::config::Config::load(None, Vec::new()).expect("default config");
+    let mav = MavIdentity {
+        system_id: 1,
+        component_id: 1,
+        sequence: 0,
+    };
+    let data = sample_of(SensorKind::Imu);
+    let n = 20_000;
+    // Stamps must increase (time going backwards is rejected): one payload per call.
+    let payloads: Vec<Vec<u8>> = (0..n * REPS as i64)
+        .map(|i| {
+            let stamp = 1_700_000_000_000_000 + i * 5_000;
+            codec::encode_sample(Format::Ros2, Some(RosType::Imu), stamp, &data, mav)
+                .expect("encode")
+                .payload
+        })
+        .collect();
+    let mut out: Vec<Decoded> = Vec::with_capacity(4);
+    let decode: Vec<f64> = payloads
+        .chunks(n as usize)
+        .map(|chunk| {
+            let t = Instant::now();
+            for p in chunk {
+                out.clear();
+                black_box(
+                    codec::decode(Format::Ros2, Some(RosType::Imu), black_box(p), &mut out).is_ok(),
+                );
+            }
+            chunk.len() as f64 / t.elapsed().as_secs_f64()
+        })
+        .collect();
+    let mut rows = vec![("bare decode".to_string(), median(decode))];
+    for topics in [0usize, 100] {
+        let ingest = Ingest::new(&config);
+        if let Ok(mut t) = ingest.ros_topics.lock() {
+            for k in 0..topics {
+                let key = if k == topics - 1 {
+                    "mavros/imu/data".to_string()
+                } else {
+                    format!("robot{k}/some/topic")
+                };
+                let entry = TopicEntry {
+                    key: key.clone(),
+                    topic: format!("/{key}"),
+                    ros_type: "sensor_msgs/msg/Imu".into(),
+                    qos: ":1::0,10".into(),
+                    zid: format!("{k:032x}"),
+                    alive: true,
+                    since_us: 0,
+                };
+                t.insert((entry.zid.clone(), key), entry);
+            }
+        }
+        let input = ingest
+            .inputs
+            .iter()
+            .find(|i| i.config.id == "imu")
+            .expect("imu input")
+            .clone();
+        let rates: Vec<f64> = payloads
+            .chunks(n as usize)
+            .map(|chunk| {
+                let t = Instant::now();
+                for (i, p) in chunk.iter().enumerate() {
+                    black_box(ingest.accept(&input, "mavros/imu/data", black_box(p), i as i64));
+                }
+                chunk.len() as f64 / t.elapsed().as_secs_f64()
+            })
+            .collect();
+        let accepted = input
+            .counters
+            .accepted
+            .load(std::sync::atomic::Ordering::Relaxed);
+        assert_eq!(accepted, (n * REPS as i64) as u64, "every sample accepted");
+        rows.push((
+            format!("Ingest::accept, {topics} bridge topics"),
+            median(rates),
+        ));
+    }
+    for (name, (m, lo, hi)) in rows {
+        println!("| {name} | {m:.0} | {lo:.0}–{hi:.0} |");
+    }
+    println!();
+}
+
 fn main() {
     // `cargo test --benches` runs bench binaries with --bench absent: keep it quick.
     let quick = !std::env::args().any(|a| a == "--bench");
@@ -266,7 +360,17 @@ fn main() {
         println!("(quick mode: run with `cargo bench --bench throughput` for figures)");
         return;
     }
-    decode_bench();
-    estimator_bench();
-    replay_bench();
+    // `cargo bench --bench throughput -- ingest` runs one section.
+    let only = std::env::args().skip(1).find(|a| !a.starts_with('-'));
+    let sections: [(&str, fn()); 4] = [
+        ("decode", decode_bench),
+        ("ingest", ingest_bench),
+        ("estimator", estimator_bench),
+        ("replay", replay_bench),
+    ];
+    for (name, run) in sections {
+        if only.as_deref().is_none_or(|o| o == name) {
+            run();
+        }
+    }
 }
