@@ -285,24 +285,31 @@ fn ingest_bench() {
                 .payload
         })
         .collect();
+    // One repetition per chunk of fresh payloads: samples/s, median and spread.
+    let per_chunk = |f: &mut dyn FnMut(usize, &[u8])| {
+        median(
+            payloads
+                .chunks(n as usize)
+                .map(|chunk| {
+                    let t = Instant::now();
+                    for (i, p) in chunk.iter().enumerate() {
+                        f(i, black_box(p));
+                    }
+                    chunk.len() as f64 / t.elapsed().as_secs_f64()
+                })
+                .collect(),
+        )
+    };
     let mut out: Vec<Decoded> = Vec::with_capacity(4);
-    let decode: Vec<f64> = payloads
-        .chunks(n as usize)
-        .map(|chunk| {
-            let t = Instant::now();
-            for p in chunk {
-                out.clear();
-                black_box(
-                    codec::decode(Format::Ros2, Some(RosType::Imu), black_box(p), &mut out).is_ok(),
-                );
-            }
-            chunk.len() as f64 / t.elapsed().as_secs_f64()
-        })
-        .collect();
-    let mut rows = vec![("bare decode".to_string(), median(decode))];
+    let decode = per_chunk(&mut |_, p| {
+        out.clear();
+        black_box(codec::decode(Format::Ros2, Some(RosType::Imu), p, &mut out).is_ok());
+    });
+    let mut rows = vec![("bare decode".to_string(), decode)];
     for topics in [0usize, 100] {
         let ingest = Ingest::new(&config);
-        if let Ok(mut t) = ingest.ros_topics.lock() {
+        {
+            let mut t = skyfuse::sync::lock(&ingest.ros_topics);
             for k in 0..topics {
                 let key = if k == topics - 1 {
                     "mavros/imu/data".to_string()
@@ -327,25 +334,15 @@ fn ingest_bench() {
             .find(|i| i.config.id == "imu")
             .expect("imu input")
             .clone();
-        let rates: Vec<f64> = payloads
-            .chunks(n as usize)
-            .map(|chunk| {
-                let t = Instant::now();
-                for (i, p) in chunk.iter().enumerate() {
-                    black_box(ingest.accept(&input, "mavros/imu/data", black_box(p), i as i64));
-                }
-                chunk.len() as f64 / t.elapsed().as_secs_f64()
-            })
-            .collect();
+        let rates = per_chunk(&mut |i, p| {
+            black_box(ingest.accept(&input, "mavros/imu/data", p, i as i64));
+        });
         let accepted = input
             .counters
             .accepted
             .load(std::sync::atomic::Ordering::Relaxed);
         assert_eq!(accepted, (n * REPS as i64) as u64, "every sample accepted");
-        rows.push((
-            format!("Ingest::accept, {topics} bridge topics"),
-            median(rates),
-        ));
+        rows.push((format!("Ingest::accept, {topics} bridge topics"), rates));
     }
     for (name, (m, lo, hi)) in rows {
         println!("| {name} | {m:.0} | {lo:.0}–{hi:.0} |");

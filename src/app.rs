@@ -54,8 +54,6 @@ pub struct AppState {
     pub controls_refused: AtomicU64,
     pub mavlink_stats: Arc<MavlinkStats>,
     pub zenoh_out_stats: Arc<ZenohOutStats>,
-    /// ROS 2 topics that bridges announce.
-    pub ros_topics: crate::ros_graph::TopicTable,
     pub started_us: Micros,
     pub zenoh_zid: String,
     pub zenoh_locators: Vec<String>,
@@ -181,11 +179,7 @@ impl AppState {
 
     /// `GET /api/v1/ros/topics`: what bridges announce, with the inputs that use each.
     pub fn ros_topics_json(&self) -> serde_json::Value {
-        let table = self
-            .ros_topics
-            .lock()
-            .map(|t| t.clone())
-            .unwrap_or_default();
+        let table = crate::sync::lock(&self.ingest.ros_topics).clone();
         let topics: Vec<serde_json::Value> = table
             .values()
             .map(|e| {
@@ -255,7 +249,6 @@ pub async fn run_with(
     let (debug_tx, debug_rx) = watch::channel(Arc::new(crate::estimator::DebugSeries::default()));
     let (mavlink_stats, endpoints) = mavlink_out::build_stats(&config.mavlink);
     let zenoh_out_stats = Arc::new(ZenohOutStats::default());
-    let ros_topics = ingest.ros_topics.clone();
     // ROS 2 graph: announce our topics, watch the bridges'.
     let (ros_tokens, ros_watch) = if config.output.ros2_announce {
         (
@@ -266,7 +259,7 @@ pub async fn run_with(
                 &config.output.ros_distro,
             )
             .await,
-            crate::ros_graph::discover(&session, ros_topics.clone()).await,
+            crate::ros_graph::discover(&session, ingest.ros_topics.clone()).await,
         )
     } else {
         (Vec::new(), None)
@@ -283,7 +276,6 @@ pub async fn run_with(
         controls_refused: AtomicU64::new(0),
         mavlink_stats: mavlink_stats.clone(),
         zenoh_out_stats: zenoh_out_stats.clone(),
-        ros_topics: ros_topics.clone(),
         started_us,
         zenoh_zid: zid.clone(),
         zenoh_locators: locators.clone(),
@@ -398,7 +390,8 @@ async fn watch_zenoh_links(state: Arc<AppState>, session: zenoh::Session) {
     let client = state.config.zenoh.mode == crate::config::ZenohMode::Client;
     let mut every = tokio::time::interval(ZENOH_LINK_INTERVAL);
     every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut was_linked = None;
+    // Not linked at start is quiet (a peer nobody has found yet); only changes speak.
+    let mut was_linked = false;
     loop {
         every.tick().await;
         let routers: Vec<String> = session
@@ -415,32 +408,27 @@ async fn watch_zenoh_links(state: Arc<AppState>, session: zenoh::Session) {
         } else {
             !routers.is_empty() || peers > 0
         };
-        if was_linked == Some(linked) {
+        if linked == was_linked {
             continue;
         }
-        let what = if client { "router" } else { "router or peer" };
-        let message = match (linked, was_linked) {
-            (true, _) => format!(
+        was_linked = linked;
+        let message = if linked {
+            let message = format!(
                 "Zenoh: connected ({} routers {routers:?}, {peers} peers)",
                 routers.len()
-            ),
-            (false, Some(true)) => format!(
+            );
+            tracing::info!("{message}");
+            message
+        } else {
+            let what = if client { "router" } else { "router or peer" };
+            let message = format!(
                 "Zenoh: lost every {what} (connect {:?}); reconnecting, no samples until then",
                 state.config.zenoh.connect
-            ),
-            // Not linked yet at start: normal for a peer nobody has found yet.
-            (false, _) => {
-                was_linked = Some(false);
-                continue;
-            }
-        };
-        if linked {
-            tracing::info!("{message}");
-        } else {
+            );
             tracing::warn!("{message}");
-        }
+            message
+        };
         state.publish_service_event("zenoh_link", None, &message);
-        was_linked = Some(linked);
     }
 }
 

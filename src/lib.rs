@@ -25,7 +25,7 @@
 //! - [`http`]: the JSON API, the websocket hub and the page.
 //! - [`app`]: `run(config, listeners, shutdown)`, wiring it all together.
 //! - [`cli`]: the command line; `main.rs` only calls [`cli::main`].
-//! - [`sync`]: the one locking rule (a poisoned lock still gives its data).
+//! - [`sync`]: a lock that outlives a panicking holder (its data is still valid).
 
 pub mod app;
 pub mod cli;

@@ -224,7 +224,7 @@ pub async fn discover(
                 return;
             }
             let alive = s.kind() == zenoh::sample::SampleKind::Put;
-            let Ok(mut t) = table.lock() else { return };
+            let mut t = crate::sync::lock(&table);
             let e = t
                 .entry((tok.zid.clone(), tok.key.clone()))
                 .or_insert_with(|| TopicEntry {

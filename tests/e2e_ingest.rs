@@ -173,10 +173,12 @@ fn client_of(router_port: u16) -> Service {
     )
 }
 
+fn imu_count(status: &serde_json::Value) -> u64 {
+    sensor(status, "imu")["received"].as_u64().unwrap_or(0)
+}
+
 fn imu_received(svc: &Service) -> u64 {
-    sensor(&svc.get_json("/api/v1/status"), "imu")["received"]
-        .as_u64()
-        .unwrap_or(0)
+    imu_count(&svc.get_json("/api/v1/status"))
 }
 
 #[test]
@@ -198,13 +200,8 @@ fn a_zenoh_client_waits_for_its_router_and_reconnects_after_a_router_restart() {
 
     let first = router(router_port, 8.0);
     svc.wait_healthy(Duration::from_secs(15));
-    let s = svc.wait_status(Duration::from_secs(10), |s| {
-        sensor(s, "imu")["received"].as_u64().unwrap_or(0) > 50
-    });
-    assert!(
-        sensor(&s, "imu")["received"].as_u64().unwrap_or(0) > 50,
-        "{s}"
-    );
+    let s = svc.wait_status(Duration::from_secs(10), |s| imu_count(s) > 50);
+    assert!(imu_count(&s) > 50, "{s}");
     let s = svc.wait_status(Duration::from_secs(3), |s| {
         s["service"]["zenoh"]["routers"] == 1
     });
@@ -230,12 +227,10 @@ fn a_zenoh_client_waits_for_its_router_and_reconnects_after_a_router_restart() {
     // The router comes back on the same endpoint: the same process resumes ingest.
     let second = router(router_port, 12.0);
     let restarted = Instant::now();
-    let s = svc.wait_status(Duration::from_secs(12), |s| {
-        sensor(s, "imu")["received"].as_u64().unwrap_or(0) > before + 20
-    });
+    let s = svc.wait_status(Duration::from_secs(12), |s| imu_count(s) > before + 20);
     let resumed = restarted.elapsed();
     assert!(
-        sensor(&s, "imu")["received"].as_u64().unwrap_or(0) > before + 20,
+        imu_count(&s) > before + 20,
         "no samples after the router came back: {s}\n{}",
         svc.log_text()
     );

@@ -316,8 +316,8 @@ impl Ingest {
 
     /// The ROS type a live bridge token announces for `key`, if any.
     pub fn announced_type(&self, key: &str) -> Option<String> {
-        let t = self.ros_topics.lock().ok()?;
-        t.values()
+        crate::sync::lock(&self.ros_topics)
+            .values()
             .find(|e| e.alive && e.key == key.trim_start_matches('/'))
             .map(|e| e.ros_type.clone())
     }
@@ -428,8 +428,6 @@ impl Ingest {
     }
 }
 
-/// zenoh-plugin-ros1 keys start with `<hex(datatype)>/<md5>/`: check them against the
-/// configured type so a mismatch is a clear error, not garbage decoded.
 /// Why a ros2 input with a configured type cannot take what its key carries: a bridge
 /// announces another type for it.
 pub fn type_mismatch(input: &InputConfig, announced: Option<&str>) -> Option<String> {
@@ -446,6 +444,8 @@ pub fn type_mismatch(input: &InputConfig, announced: Option<&str>) -> Option<Str
     ))
 }
 
+/// zenoh-plugin-ros1 keys start with `<hex(datatype)>/<md5>/`: check them against the
+/// configured type so a mismatch is a clear error, not garbage decoded.
 fn check_ros1_key(key: &str, ty: RosType) -> Result<(), String> {
     let mut chunks = key.split('/');
     let (Some(hex_type), Some(md5)) = (chunks.next(), chunks.next()) else {
