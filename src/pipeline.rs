@@ -19,8 +19,6 @@ use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 /// Live series are sent to the hub at most this often (sample time), µs.
 const TICK_INTERVAL_US: i64 = 20_000;
-/// The estimator status snapshot is refreshed this often (sample time), µs.
-const STATUS_INTERVAL_US: i64 = 200_000;
 
 /// A state-changing request from the control API.
 #[derive(Debug)]
@@ -195,7 +193,8 @@ pub struct PipelineConfig {
     pub inputs: InputList,
 }
 
-/// Health is re-checked this often without samples (staleness), ms.
+/// Health is re-checked, and the status snapshot refreshed, this often (staleness and an
+/// estimate turning invalid show without samples).
 const HEALTH_TICK: std::time::Duration = std::time::Duration::from_millis(100);
 
 /// Run until the sample channel closes.
@@ -210,7 +209,6 @@ pub async fn run(
 ) {
     let mut fusion = Fusion::new(config.estimator, config.health, &config.inputs);
     let mut ticks = TickBuilder::default();
-    let mut last_status_us: Option<i64> = None;
     let mut last_pose_us: Option<i64> = None;
     let mut rejected_seen: BTreeMap<String, u64> = BTreeMap::new();
     let mut health_timer = tokio::time::interval(HEALTH_TICK);
@@ -237,10 +235,6 @@ pub async fn run(
                 if let Some(frame) = ticks.build(est, t, started) {
                     shared.hub.publish(FrameKind::Tick, t, frame);
                 }
-                if last_status_us.is_none_or(|l| t < l || t - l >= STATUS_INTERVAL_US) {
-                    last_status_us = Some(t);
-                    refresh_status(&shared, &fusion);
-                }
             }
             _ = health_timer.tick() => {
                 let now = crate::ingest::now_us();
@@ -255,8 +249,8 @@ pub async fn run(
                 }
                 let events = fusion.tick(now);
                 publish_events(&shared, &events);
-                // Also without events: with no samples arriving this is what moves the
-                // status on (staleness, an estimate turning invalid).
+                // The status snapshot is refreshed here (10 Hz) with samples or without
+                // (staleness, an estimate turning invalid), and after a command.
                 refresh_status(&shared, &fusion);
             }
             Some((cmd, reply)) = commands.recv() => {
