@@ -215,10 +215,10 @@ fn estimator_bench() {
 }
 
 fn replay_bench() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data/px4-flow-vio-7c824ee5");
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/px4-flow-vio-7c824ee5");
     let t = Instant::now();
-    let log = match skyfuse::replay::px4csv::read_dir(&dir) {
+    let log = match skyfuse::replay::px4log::read_dir(&dir) {
         Ok(l) => l,
         Err(e) => {
             println!("(PX4 replay skipped: {e})");

@@ -95,10 +95,11 @@ pub enum Command {
         #[arg(long)]
         list: bool,
     },
-    /// Replay a recorded flight (a PX4 log exported to CSV by pyulog's ulog2csv)
-    /// through the estimator and write TUM files, events and an APE summary.
+    /// Replay a recorded flight (a PX4 ULog, a directory of its CSV export by pyulog's
+    /// ulog2csv, or a MAVLink telemetry log) through the estimator and write TUM files,
+    /// events and a summary scored on the whole log.
     Replay {
-        /// Directory of `<topic>_<instance>.csv` files.
+        /// A `.ulg` file, a `.tlog` file, or a directory of `<topic>_<instance>.csv[.gz]`.
         path: PathBuf,
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
@@ -763,18 +764,46 @@ fn replay(
         }
     }
     let mut bar = Progress::new("reading  ");
-    let log = crate::replay::px4csv::read_dir_with_progress(path, &mut |done, total| {
-        bar.update(done as f64 / total.max(1) as f64)
-    })
-    .map_err(|e| e.to_string())?;
-    for t in &log.topics {
-        match &t.first_error {
-            Some(e) => {
-                tracing::warn!(topic = %t.name, source = %t.source, rows = t.rows, skipped = t.skipped, "read; first problem: {e}")
-            }
-            None => tracing::info!(topic = %t.name, source = %t.source, rows = t.rows, "read"),
+    let mut on_progress = |done: u64, total: u64| bar.update(done as f64 / total.max(1) as f64);
+    let is_tlog = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("tlog"));
+    let samples = if is_tlog {
+        let log =
+            crate::replay::tlog::read_tlog(path, &mut on_progress).map_err(|e| e.to_string())?;
+        for (m, n) in &log.messages {
+            tracing::info!(message = %m, samples = n, "read");
         }
-    }
+        if log.skipped_bytes > 0 || log.bad_frames > 0 {
+            tracing::warn!(
+                skipped_bytes = log.skipped_bytes,
+                bad_frames = log.bad_frames,
+                "corrupt records skipped; first problem: {}",
+                log.first_error
+                    .as_deref()
+                    .unwrap_or("bytes between records")
+            );
+        }
+        log.samples
+    } else {
+        let log = crate::replay::px4log::read_path_with_progress(path, &mut on_progress)
+            .map_err(|e| e.to_string())?;
+        for t in &log.topics {
+            match &t.first_error {
+                Some(e) => {
+                    tracing::warn!(topic = %t.name, source = %t.source, rows = t.rows, skipped = t.skipped, "read; first problem: {e}")
+                }
+                None => tracing::info!(topic = %t.name, source = %t.source, rows = t.rows, "read"),
+            }
+        }
+        for s in &log.stand_ins {
+            println!("stand-in: {s}");
+        }
+        for m in &log.missing {
+            println!("missing: {m}");
+        }
+        log.samples
+    };
     let mut bar = Progress::new("replaying");
     let opts = offline::ReplayOptions {
         fuse: sources.map(|s| s.to_vec()),
@@ -783,7 +812,7 @@ fn replay(
     };
     let summary = offline::run_replay(
         &path.display().to_string(),
-        &log.samples,
+        &samples,
         cfg,
         c.health.clone(),
         &opts,
@@ -797,12 +826,38 @@ fn replay(
         summary.mode,
         out.display()
     );
-    println!("APE RMSE against {} (SE(3)-aligned), m:", summary.reference);
+    let a = &summary.availability;
+    println!(
+        "valid {:.1} % of {:.1} s, longest invalid {:.1} s{}",
+        100.0 * a.valid_fraction,
+        a.span_s,
+        a.longest_invalid_s,
+        match (
+            a.airborne_s,
+            a.airborne_valid_fraction,
+            a.airborne_longest_invalid_s
+        ) {
+            (Some(s), Some(f), Some(g)) => format!(
+                "; airborne {s:.1} s: valid {:.1} %, longest invalid {g:.1} s",
+                100.0 * f
+            ),
+            _ => String::new(),
+        }
+    );
+    println!(
+        "APE against {} (fused: valid poses only), m:   RMSE / max SE(3)-aligned   RMSE / max origin-aligned",
+        summary.reference
+    );
+    let stat = |a: &Option<crate::eval::ApeStats>| match a {
+        Some(a) => format!("{:>7.3} / {:>7.3}", a.rmse, a.max),
+        None => format!("{:>17}", "-"),
+    };
     for s in &summary.scores {
         println!(
-            "  {:<12} {:>8}  ({} poses)",
+            "  {:<12} {}     {}   ({} poses)",
             s.name,
-            fmt_rmse(s.ape.as_ref().map(|a| a.rmse)),
+            stat(&s.ape),
+            stat(&s.ape_origin),
             s.poses
         );
     }

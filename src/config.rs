@@ -169,10 +169,23 @@ pub struct MavlinkConfig {
     pub zenoh_json: bool,
     /// An estimate older than this is not sent, ms.
     pub max_age_ms: f64,
+    /// `[lat_deg, lon_deg, alt_m]`: send it to the autopilot as its EKF origin and home
+    /// (SET_GPS_GLOBAL_ORIGIN, SET_HOME_POSITION), which a vehicle without GNSS needs
+    /// before it can use VISION_POSITION_ESTIMATE. Unset: nothing is sent.
+    pub ekf_origin: Option<[f64; 3]>,
+    /// The autopilot's system id, the target of the origin messages.
+    pub target_system: u8,
 }
 
 /// PX4 wants 30–50 Hz; ArduPilot at least 4 Hz.
 pub const DEFAULT_MAV_RATE_HZ: f64 = 30.0;
+/// The autopilot is system 1 unless configured otherwise.
+pub const DEFAULT_MAV_TARGET_SYSTEM: u8 = 1;
+/// The origin messages go with every HEARTBEAT this long after start, then every
+/// [`ORIGIN_RESEND_S`] (the EKF origin only: ArduPilot ignores it once set, and a home
+/// moved in flight would change where RTL goes).
+pub const ORIGIN_BURST_S: f64 = 10.0;
+pub const ORIGIN_RESEND_S: f64 = 10.0;
 /// PX4 rejects vision data older than 400 ms; stay well inside.
 pub const DEFAULT_MAV_MAX_AGE_MS: f64 = 250.0;
 
@@ -190,6 +203,8 @@ impl Default for MavlinkConfig {
             zenoh_raw: false,
             zenoh_json: false,
             max_age_ms: DEFAULT_MAV_MAX_AGE_MS,
+            ekf_origin: None,
+            target_system: DEFAULT_MAV_TARGET_SYSTEM,
         }
     }
 }

@@ -50,7 +50,15 @@ pub enum OfflineError {
 /// Accumulates the trajectories and events of one run.
 #[derive(Default)]
 pub struct Recorder {
+    /// The poses the service would have sent: valid ones only.
     pub fused: Trajectory,
+    /// Every pose, valid or not (`fused_all.tum`).
+    pub fused_all: Trajectory,
+    /// Validity of each recorded pose: (t, valid).
+    pub validity: Vec<(f64, bool)>,
+    /// Airborne or not from the autopilot's land detector (or the simulator's truth):
+    /// (t, airborne) at each change.
+    pub airborne: Vec<(f64, bool)>,
     /// Per position source, raw (GNSS in local ENU from its first fix, odometry in its
     /// own frame, the autopilot's estimate) or as integrated by the estimator (flow).
     pub sources: BTreeMap<String, Trajectory>,
@@ -109,6 +117,11 @@ impl Recorder {
                     o.orientation,
                 );
             }
+            SensorData::VehicleState(v) => {
+                if let Some(l) = v.landed {
+                    self.set_airborne(t, l != crate::sample::LandedState::OnGround);
+                }
+            }
             SensorData::AutopilotEstimate(a) => {
                 if let Some(p) = a.local_position {
                     let q = a
@@ -119,6 +132,13 @@ impl Recorder {
                 }
             }
             _ => {}
+        }
+    }
+
+    /// The vehicle is (or is not) in the air from `t` on.
+    pub fn set_airborne(&mut self, t: f64, airborne: bool) {
+        if self.airborne.last().is_none_or(|&(_, a)| a != airborne) {
+            self.airborne.push((t, airborne));
         }
     }
 
@@ -162,7 +182,11 @@ impl Recorder {
         }
         self.last_fused_us = Some(pose.time_us);
         let t = self.secs(pose.time_us);
-        push(&mut self.fused, t, pose.position, pose.orientation);
+        push(&mut self.fused_all, t, pose.position, pose.orientation);
+        self.validity.push((t, pose.valid));
+        if pose.valid {
+            push(&mut self.fused, t, pose.position, pose.orientation);
+        }
     }
 
     pub fn event(&mut self, t_s: f64, kind: &str, source: Option<&str>, message: &str) {
@@ -178,7 +202,79 @@ impl Recorder {
 pub struct Score {
     pub name: String,
     pub poses: usize,
+    /// SE(3)-aligned (`evo_ape -a`).
     pub ape: Option<ApeStats>,
+    /// Aligned at the first pose only (`evo_ape --align_origin`): an offset the run
+    /// carries from its start counts in full.
+    pub ape_origin: Option<ApeStats>,
+}
+
+/// How much of the time the estimate was valid (what an autopilot gets).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Availability {
+    /// Seconds from the first to the last recorded pose.
+    pub span_s: f64,
+    /// Fraction of that span with a valid estimate.
+    pub valid_fraction: f64,
+    /// Longest stretch without a valid estimate after the first valid one, s.
+    pub longest_invalid_s: f64,
+    /// Airborne seconds (land detector or truth), if known.
+    pub airborne_s: Option<f64>,
+    /// Fraction of the airborne time with a valid estimate.
+    pub airborne_valid_fraction: Option<f64>,
+    /// Longest airborne stretch without a valid estimate, s.
+    pub airborne_longest_invalid_s: Option<f64>,
+}
+
+/// Availability from the validity ticks and the airborne changes.
+fn availability(validity: &[(f64, bool)], airborne: &[(f64, bool)]) -> Availability {
+    let air_at = |t: f64| -> Option<bool> {
+        let i = airborne.partition_point(|(ta, _)| *ta <= t);
+        i.checked_sub(1)
+            .map(|j| airborne[j].1)
+            .or(Some(false))
+            .filter(|_| !airborne.is_empty())
+    };
+    let mut span = 0.0;
+    let mut valid = 0.0;
+    let mut air = 0.0;
+    let mut air_valid = 0.0;
+    let (mut gap, mut longest, mut air_gap, mut air_longest) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    let mut seen_valid = false;
+    for w in validity.windows(2) {
+        let (t, ok) = w[0];
+        let dt = (w[1].0 - t).max(0.0);
+        span += dt;
+        seen_valid |= ok;
+        if ok {
+            valid += dt;
+            gap = 0.0;
+        } else if seen_valid {
+            gap += dt;
+            longest = longest.max(gap);
+        }
+        if air_at(t) == Some(true) {
+            air += dt;
+            if ok {
+                air_valid += dt;
+                air_gap = 0.0;
+            } else {
+                air_gap += dt;
+                air_longest = air_longest.max(air_gap);
+            }
+        } else {
+            air_gap = 0.0;
+        }
+    }
+    let known = !airborne.is_empty();
+    Availability {
+        span_s: span,
+        valid_fraction: if span > 0.0 { valid / span } else { 0.0 },
+        longest_invalid_s: longest,
+        airborne_s: known.then_some(air),
+        airborne_valid_fraction: (known && air > 0.0).then(|| air_valid / air),
+        airborne_longest_invalid_s: known.then_some(air_longest),
+    }
 }
 
 /// What one run wrote and measured.
@@ -190,9 +286,11 @@ pub struct Summary {
     pub fused_poses: usize,
     pub events: usize,
     pub reference: String,
-    /// Scored time window, s, if limited.
+    /// Scored time window, s, if limited (default: the whole run).
     pub window_s: Option<(f64, f64)>,
-    /// SE(3)-aligned APE (evo_ape -a) of each trajectory against the reference.
+    /// `fused` is scored on the valid poses only: what the service would have sent.
+    pub availability: Availability,
+    /// APE of each trajectory against the reference, SE(3)- and origin-aligned.
     pub scores: Vec<Score>,
     pub files: Vec<String>,
 }
@@ -326,6 +424,11 @@ fn finish(
         files.push(write_file(out, "truth.tum", &tum("truth", &t)?)?);
     }
     files.push(write_file(out, "fused.tum", &tum("fused", &rec.fused)?)?);
+    files.push(write_file(
+        out,
+        "fused_all.tum",
+        &tum("fused_all", &rec.fused_all)?,
+    )?);
     for (name, tr) in &rec.sources {
         files.push(write_file(out, &format!("{name}.tum"), &tum(name, tr)?)?);
     }
@@ -338,25 +441,36 @@ fn finish(
     let mut scores = Vec::new();
     let mut score = |name: &str, tr: &Trajectory| {
         let tr = windowed(tr, window);
-        let ape = match &reference {
-            Reference::Truth(truth) => {
-                ape_aligned(&truth_at(*truth, &tr.t), &tr, ApeOptions::default())
-            }
+        let (r, opts) = match &reference {
+            Reference::Truth(truth) => (Some(truth_at(*truth, &tr.t)), ApeOptions::default()),
             Reference::Source {
                 name: rn,
                 max_diff_s,
-            } => rec.sources.get(*rn).and_then(|r| {
-                let opts = ApeOptions {
+            } => (
+                rec.sources.get(*rn).map(|r| windowed(r, window)),
+                ApeOptions {
                     max_diff_s: *max_diff_s,
                     ..ApeOptions::default()
-                };
-                ape_aligned(&windowed(r, window), &tr, opts)
-            }),
+                },
+            ),
         };
+        let ape = r.as_ref().and_then(|r| ape_aligned(r, &tr, opts));
+        let ape_origin = r.as_ref().and_then(|r| {
+            evo_ape(
+                r,
+                &tr,
+                &ApeOptions {
+                    align_origin: true,
+                    ..opts
+                },
+            )
+            .ok()
+        });
         scores.push(Score {
             name: name.to_string(),
             poses: tr.t.len(),
             ape,
+            ape_origin,
         });
     };
     score("fused", &rec.fused);
@@ -378,6 +492,7 @@ fn finish(
             Reference::Source { name, .. } => name.into(),
         },
         window_s: window,
+        availability: availability(&rec.validity, &rec.airborne),
         scores,
         files,
     };
@@ -425,7 +540,12 @@ pub fn run_scenario(
     }
     let mut samples = 0u64;
     let mut last_progress = 0.0;
+    let profile = scn.profile;
     for ev in sim {
+        rec.set_airborne(
+            ev.publish_t,
+            truth_of(profile, ev.publish_t).position.z > 0.05,
+        );
         let spec = scn.streams[ev.stream];
         let s = Sample {
             source: spec.input_id.into(),
@@ -451,7 +571,6 @@ pub fn run_scenario(
         mode,
         samples,
     };
-    let profile = scn.profile;
     let truth = move |t: f64| {
         let s = truth_of(profile, t);
         (s.position, s.attitude)
@@ -510,11 +629,21 @@ pub fn run_replay(
 ) -> Result<Summary, OfflineError> {
     let window = opts.window;
     if let Some(list) = &opts.fuse {
-        // Exact source ids: `flow` is the first flow sensor, `flow_1` the second.
-        let ids: std::collections::BTreeSet<&str> =
-            samples.iter().map(|s| s.source.as_ref()).collect();
-        for id in ids {
-            cfg.sources.entry(id.to_string()).or_default().fuse = list.iter().any(|l| l == id);
+        // A source id (`flow_1`), or a sensor kind (`flow`: every flow sensor).
+        let ids: std::collections::BTreeMap<&str, SensorKind> = samples
+            .iter()
+            .map(|s| (s.source.as_ref(), s.data.kind()))
+            .collect();
+        // The autopilot's armed/landed state is not a sensor under comparison: it is
+        // used whenever the log has it, as the service uses EXTENDED_SYS_STATE.
+        let state_ids: std::collections::BTreeSet<&str> = samples
+            .iter()
+            .filter(|s| s.data.kind() == SensorKind::VehicleState)
+            .map(|s| s.source.as_ref())
+            .collect();
+        for (id, kind) in ids {
+            cfg.sources.entry(id.to_string()).or_default().fuse =
+                list.iter().any(|l| l == id || l == kind.as_str()) || state_ids.contains(id);
         }
     }
     let mode = cfg.mode;

@@ -211,6 +211,7 @@ pub async fn run(
     let mut ticks = TickBuilder::default();
     let mut last_pose_us: Option<i64> = None;
     let mut rejected_seen: BTreeMap<String, u64> = BTreeMap::new();
+    let mut restarts_seen: BTreeMap<String, u64> = BTreeMap::new();
     let mut health_timer = tokio::time::interval(HEALTH_TICK);
     health_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let started = shared.started_us;
@@ -245,6 +246,18 @@ pub async fn run(
                         *seen = st.rejected;
                         let text = st.last_error.clone().unwrap_or_else(|| "rejected".into());
                         fusion.rejected(&st.id, "input_rejected", &text, now);
+                    }
+                    let seen = restarts_seen.entry(st.id.clone()).or_insert(0);
+                    if st.clock_restarts > *seen {
+                        *seen = st.clock_restarts;
+                        let text = st.last_clock_restart.clone().unwrap_or_default();
+                        publish_events(&shared, &[EstimatorEvent {
+                            time_us: now,
+                            kind: "clock_restart",
+                            source: Some(st.id.clone()),
+                            message: format!("{}: {text}", st.id),
+                            data: json!({ "clock_restarts": st.clock_restarts }),
+                        }]);
                     }
                 }
                 let events = fusion.tick(now);

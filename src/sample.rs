@@ -50,10 +50,16 @@ pub enum SensorData {
     /// The autopilot's own estimate (LOCAL_POSITION_NED, GLOBAL_POSITION_INT): shown
     /// for comparison only, never fused (it would close a feedback loop through our VPE).
     AutopilotEstimate(AutopilotEstimate),
+    /// The autopilot's armed and landed state (HEARTBEAT, EXTENDED_SYS_STATE; PX4's
+    /// actuator_armed, vehicle_land_detected): tells the estimator the vehicle is on the
+    /// ground when nothing else aids it.
+    VehicleState(VehicleState),
 }
 
 /// The sensor kinds, as named in config and the status API.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum SensorKind {
     Imu,
@@ -63,6 +69,7 @@ pub enum SensorKind {
     Range,
     Odometry,
     AutopilotEstimate,
+    VehicleState,
 }
 
 impl SensorData {
@@ -75,6 +82,7 @@ impl SensorData {
             SensorData::Range(_) => SensorKind::Range,
             SensorData::Odometry(_) => SensorKind::Odometry,
             SensorData::AutopilotEstimate(_) => SensorKind::AutopilotEstimate,
+            SensorData::VehicleState(_) => SensorKind::VehicleState,
         }
     }
 }
@@ -150,6 +158,7 @@ impl SensorData {
                 "local position",
                 m.local_position.iter().flat_map(|v| v.iter()),
             ),
+            SensorData::VehicleState(_) => Ok(()),
         }
     }
 }
@@ -164,6 +173,7 @@ impl SensorKind {
             SensorKind::Range => "range",
             SensorKind::Odometry => "odometry",
             SensorKind::AutopilotEstimate => "autopilot_estimate",
+            SensorKind::VehicleState => "vehicle_state",
         }
     }
 }
@@ -248,7 +258,7 @@ pub struct OpticalFlow {
     /// flow_vel_x/y). Axes body FLU, a right-handed rotation counts positive, so a
     /// downward camera at height d sees rate = ω_xy + (v_y, −v_x)/d. PX4 sends FRD
     /// axes: its y changes sign on the way in (checked on a real PX4 flight against
-    /// its visual odometry, `replay::px4csv`).
+    /// its visual odometry, `replay::px4log`).
     pub rate: Option<Vector2<f64>>,
     /// The flow sensor's own gyro over the same interval, rad/s, body FLU.
     pub gyro: Option<Vector3<f64>>,
@@ -319,6 +329,24 @@ pub struct AutopilotEstimate {
     pub velocity: Option<Vector3<f64>>,
     /// Heading, rad, ENU yaw (0 = east, counter-clockwise), where given.
     pub yaw: Option<f64>,
+}
+
+/// MAV_LANDED_STATE, as PX4 and ArduPilot report it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LandedState {
+    OnGround,
+    InAir,
+    Takeoff,
+    Landing,
+}
+
+/// What the autopilot says of the vehicle as a whole. Either part may be unknown (a
+/// HEARTBEAT has only `armed`, EXTENDED_SYS_STATE only `landed`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct VehicleState {
+    pub armed: Option<bool>,
+    pub landed: Option<LandedState>,
 }
 
 /// Frame conversion helpers used by codecs of NED/FRD sources.

@@ -60,6 +60,13 @@ enum JsonSample {
         #[serde(default)]
         frame_id: String,
     },
+    /// The autopilot's view of the vehicle; either field may be left out.
+    VehicleState {
+        stamp_us: Option<i64>,
+        armed: Option<bool>,
+        /// `on_ground`, `in_air`, `takeoff` or `landing`.
+        landed: Option<LandedState>,
+    },
 }
 
 fn default_fix() -> String {
@@ -87,6 +94,14 @@ pub fn decode(payload: &[u8]) -> Result<Decoded, DecodeError> {
     let s: JsonSample =
         serde_json::from_slice(payload).map_err(|e| DecodeError::Json(e.to_string()))?;
     let (stamp_us, data) = match s {
+        JsonSample::VehicleState {
+            stamp_us,
+            armed,
+            landed,
+        } => (
+            stamp_us,
+            SensorData::VehicleState(VehicleState { armed, landed }),
+        ),
         JsonSample::Imu {
             stamp_us,
             gyro,
@@ -310,6 +325,10 @@ pub fn encode(stamp_us: i64, data: &SensorData) -> Result<String, EncodeError> {
             "velocity": o.velocity.map(|v| [v.x, v.y, v.z]),
             "pose_cov": o.pose_cov.map(|c| c.transpose().as_slice().to_vec()),
             "frame_id": o.frame_id,
+        }),
+        SensorData::VehicleState(v) => json!({
+            "kind": "vehicle_state", "stamp_us": stamp_us,
+            "armed": v.armed, "landed": v.landed,
         }),
         SensorData::AutopilotEstimate(_) => {
             return Err(EncodeError::Unsupported(

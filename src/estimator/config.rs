@@ -57,6 +57,12 @@ pub const DEFAULT_ATTITUDE_NOISE_RAD: f64 = 0.01;
 /// Acceleration noise of the constant-velocity model used while no IMU arrives, m/s².
 pub const DEFAULT_NO_IMU_ACCEL_NOISE: f64 = 3.0;
 pub const DEFAULT_IMU_TIMEOUT_MS: f64 = 100.0;
+/// On the ground with no horizontal aiding: 1σ of the held position, m, and of the
+/// zero velocity, m/s (see `estimator::ground`).
+pub const DEFAULT_GROUND_POS_NOISE: f64 = 0.3;
+pub const DEFAULT_GROUND_VEL_NOISE: f64 = 0.1;
+/// Unaided and not at rest: 1σ of the loosely held position, m (PX4 EKF2_NOAID_NOISE).
+pub const DEFAULT_FAKE_POS_NOISE: f64 = 10.0;
 pub const DEFAULT_ATTITUDE_TIMEOUT_MS: f64 = 500.0;
 /// Own attitude filter (PX4 attitude_estimator_q): accelerometer weight ATT_W_ACC.
 pub const DEFAULT_ATT_W_ACC: f64 = 0.2;
@@ -256,6 +262,9 @@ pub struct EstimatorConfig {
     pub att_bias_max: f64,
     pub gyro_bias_tau_s: f64,
     pub aiding_timeout_ms: f64,
+    pub ground_pos_noise: f64,
+    pub ground_vel_noise: f64,
+    pub fake_pos_noise: f64,
     pub max_pos_std_m: f64,
     pub monitor_enabled: bool,
     pub monitor_pos_bound_m: f64,
@@ -323,6 +332,9 @@ impl Default for EstimatorConfig {
             att_bias_max: DEFAULT_ATT_BIAS_MAX,
             gyro_bias_tau_s: DEFAULT_GYRO_BIAS_TAU_S,
             aiding_timeout_ms: DEFAULT_AIDING_TIMEOUT_MS,
+            ground_pos_noise: DEFAULT_GROUND_POS_NOISE,
+            ground_vel_noise: DEFAULT_GROUND_VEL_NOISE,
+            fake_pos_noise: DEFAULT_FAKE_POS_NOISE,
             max_pos_std_m: DEFAULT_MAX_POS_STD_M,
             monitor_enabled: DEFAULT_MONITOR_ENABLED,
             monitor_pos_bound_m: DEFAULT_MONITOR_POS_BOUND_M,
@@ -386,7 +398,7 @@ impl EstimatorConfig {
                 SensorKind::Flow => DEFAULT_LATENCY_MS_FLOW,
                 SensorKind::Range => DEFAULT_LATENCY_MS_RANGE,
                 SensorKind::Gnss => DEFAULT_LATENCY_MS_GNSS,
-                SensorKind::AutopilotEstimate => 0.0,
+                SensorKind::AutopilotEstimate | SensorKind::VehicleState => 0.0,
             });
         if ms.is_finite() {
             (ms * 1000.0).round() as i64
@@ -405,6 +417,9 @@ impl EstimatorConfig {
             ("init_vel_var", self.init_vel_var),
             ("accel_noise_density", self.accel_noise_density),
             ("aiding_timeout_ms", self.aiding_timeout_ms),
+            ("ground_pos_noise", self.ground_pos_noise),
+            ("ground_vel_noise", self.ground_vel_noise),
+            ("fake_pos_noise", self.fake_pos_noise),
             ("max_pos_std_m", self.max_pos_std_m),
             ("wrls_period_ms", self.wrls_period_ms),
             ("monitor_time_s", self.monitor_time_s),

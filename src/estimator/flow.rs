@@ -163,6 +163,11 @@ fn flow_height(core: &Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow) ->
     if let Some(d) = core.latest_range(t) {
         return Some(d);
     }
+    // A range finder at its minimum says the vehicle is on its gear: the fused height
+    // (the middle of [0, min]) is no scale for the flow.
+    if core.ground.range_says_ground(t) {
+        return None;
+    }
     let ekf = core.ekf.as_ref()?;
     let ct = cos_tilt(&core.att.q);
     (ekf.p[(2, 2)] < 0.25 && ct > 0.3).then(|| ekf.pos().z / ct)

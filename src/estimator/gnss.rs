@@ -141,7 +141,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     // unknown amount; the first fix resets the position to it (PX4's reset_pos_to_gps)
     // rather than being gated out, and the reset counter tells the autopilot.
     let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
-    let lost = core.unaided_since.is_some() || core.last_aiding.is_none_or(|l| t - l > timeout);
+    // Held by the no-aiding constraints is lost too: the hold is not where the vehicle is.
+    let lost =
+        core.unaided_since.is_some() || core.ground.last_h_aiding.is_none_or(|l| t - l > timeout);
     if lost && core.mode_ekf_direct {
         if let Some(ekf) = core.ekf.as_mut() {
             let bias = Vector3::new(
@@ -171,7 +173,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
                 ),
                 serde_json::json!({ "reset_counter": core.reset_counter, "jump_m": jump, "gap_s": gap_s }),
             );
-            core.last_aiding = Some(t);
+            core.aided(t, "gnss");
             core.unaided_since = None;
             core.gnss.last_fused = Some(t);
             return;

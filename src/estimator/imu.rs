@@ -127,6 +127,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
     if core.att.source == super::attitude::AttitudeSource::Own {
         core.imu.gyro_bias = core.att.own.bias;
     }
+    super::ground::imu_sample(&mut core.ground, t, imu.gyro, imu.accel);
     let rate = imu.gyro.map(|g| g - core.imu.gyro_bias);
     if let Some(w) = rate {
         core.imu.rate = Some((t, w));

@@ -29,6 +29,7 @@ pub mod config;
 pub mod ekf;
 mod flow;
 mod gnss;
+mod ground;
 mod imu;
 pub mod monitor;
 mod odometry;
@@ -184,6 +185,8 @@ pub(crate) struct Core {
     pub flow_cal: FlowCalibrator,
     /// Latest range per source: (time, slant distance).
     pub range: BTreeMap<String, (i64, f64)>,
+    /// On the ground / at rest, and the constraints without horizontal aiding.
+    pub ground: ground::GroundState,
     pub wrls: Wrls,
     pub wrls_ekf_last: Option<i64>,
     pub monitors: Monitors,
@@ -193,6 +196,8 @@ pub(crate) struct Core {
     pub events: Vec<EstimatorEvent>,
     pub throttle: BTreeMap<String, i64>,
     pub last_aiding: Option<i64>,
+    /// Last horizontal aiding, real or the ground constraint (validity).
+    pub last_h_valid: Option<i64>,
     /// Since when the estimate has been dead-reckoning (no position source beyond the
     /// aiding timeout); cleared when an absolute position source takes hold again.
     pub unaided_since: Option<i64>,
@@ -203,6 +208,8 @@ pub(crate) struct Core {
 }
 
 const AIDING: [&str; 4] = ["gnss", "odometry", "flow", "range"];
+/// The aiding sources that hold the horizontal position or velocity.
+const HORIZONTAL_AIDING: [&str; 3] = ["gnss", "odometry", "flow"];
 
 impl Core {
     fn new(cfg: &EstimatorConfig) -> Self {
@@ -311,6 +318,14 @@ impl Core {
         p.value = [v.x, v.y, v.z];
     }
 
+    /// A sample arrived that is not a measurement to fuse but was understood (a range
+    /// finder on the ground): seen, neither used nor rejected.
+    pub fn mark_seen(&mut self, t: i64, source: &str, kind: &'static str) {
+        let st = self.stats.entry(source.to_string()).or_default();
+        st.kind = kind;
+        st.last_time_us = Some(t);
+    }
+
     /// A non-aiding source (IMU, attitude) contributed.
     pub fn mark_used(&mut self, t: i64, source: &str) {
         let st = self.stats.entry(source.to_string()).or_default();
@@ -325,7 +340,19 @@ impl Core {
         st.last_time_us = Some(t);
         st.last_fused_us = Some(t);
         st.accepted += 1;
+        self.aided(t, kind);
+    }
+
+    /// An aiding measurement of `kind` went in at `t` (the ground constraint counts as
+    /// horizontal aiding for validity, never for releasing itself).
+    fn aided(&mut self, t: i64, kind: &str) {
         self.last_aiding = Some(t);
+        if HORIZONTAL_AIDING.contains(&kind) {
+            self.ground.last_h_aiding = Some(t);
+        }
+        if HORIZONTAL_AIDING.contains(&kind) || kind == "ground" {
+            self.last_h_valid = Some(t);
+        }
     }
 
     fn record(&mut self, t: i64, source: &str, kind: &'static str, out: &UpdateOutcome, ctx: &Ctx) {
@@ -342,7 +369,7 @@ impl Core {
             st.accepted += 1;
             st.last_fused_us = Some(t);
             if AIDING.contains(&kind) {
-                self.last_aiding = Some(t);
+                self.aided(t, kind);
             }
         } else {
             st.rejected += 1;
@@ -617,6 +644,10 @@ impl Core {
         self.pred_t = Some(t);
         self.wrls.init(t, pos, pos_var);
         self.last_aiding = Some(t);
+        self.last_h_valid = Some(t);
+        if source != "ground" {
+            self.ground.last_h_aiding = Some(t);
+        }
         self.event(
             t,
             "initialised",
@@ -724,6 +755,7 @@ impl Core {
             SensorData::Flow(f) => flow::process(self, ctx, t, source, f),
             SensorData::Range(r) => range::process(self, ctx, t, source, r),
             SensorData::Odometry(o) => odometry::process(self, ctx, t, source, o),
+            SensorData::VehicleState(v) => ground::process_vehicle_state(self, t, source, v),
             SensorData::AutopilotEstimate(_) => {}
         }
         if let Some(st) = self.stats.get_mut(source) {
@@ -737,6 +769,7 @@ impl Core {
 
     fn post(&mut self, t: i64, ctx: &Ctx) {
         let cfg = ctx.cfg;
+        ground::control(self, ctx, t);
         let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
         if self.unaided_since.is_none() && self.initialised() {
             if let Some(l) = self.last_aiding.filter(|l| t - l > timeout) {
@@ -856,6 +889,19 @@ impl Core {
                 ))
             }
         }
+        if self.ground.handled(t) {
+            return Some("disarmed but moving (carried by hand): not valid until set down".into());
+        }
+        // A height alone (a range finder) leaves the horizontal position dead-reckoned.
+        match self.last_h_valid {
+            Some(l) if t - l <= timeout => {}
+            _ => {
+                return Some(format!(
+                    "no horizontal position or velocity source fused for more than {} ms",
+                    cfg.aiding_timeout_ms
+                ))
+            }
+        }
         let var = match (&self.ekf, self.mode_wrls) {
             (Some(e), false) => e.cov3(IDX_P).diagonal(),
             _ => self.wrls.var,
@@ -880,7 +926,8 @@ fn rank(k: SensorKind) -> u8 {
         SensorKind::Flow => 3,
         SensorKind::Odometry => 4,
         SensorKind::Gnss => 5,
-        SensorKind::AutopilotEstimate => 6,
+        SensorKind::VehicleState => 6,
+        SensorKind::AutopilotEstimate => 7,
     }
 }
 

@@ -31,10 +31,19 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, r: &Range) {
     let sc = cfg.source(source);
     let min = sc.min_m.or(r.min_m).unwrap_or(DEFAULT_RANGE_MIN_M);
     let max = sc.max_m.or(r.max_m).unwrap_or(DEFAULT_RANGE_MAX_M);
+    let down = r.orientation.is_none_or(|o| o == MAV_SENSOR_DOWN);
+    if down && r.distance_m.is_finite() && r.distance_m <= min {
+        // At or below its minimum a downward range finder is on its gear (or closer to
+        // something than it can measure): evidence of the ground, not a height.
+        super::ground::range_sample(&mut core.ground, t, r.distance_m, min, true);
+        core.mark_seen(t, source, "range");
+        return;
+    }
     if let Err(why) = checks(r, min, max) {
         core.reject(t, source, why, ctx);
         return;
     }
+    super::ground::range_sample(&mut core.ground, t, r.distance_m, min, false);
     core.range.insert(source.to_string(), (t, r.distance_m));
     let ct = cos_tilt(&core.att.q);
     if !core.att.known() || ct < cfg.range_max_tilt_rad.cos() {

@@ -5,6 +5,7 @@
 //! network; [`zenoh_in`] only wires Zenoh subscribers to it and forwards the samples to
 //! the estimator task through a bounded channel (overload is counted as `dropped`).
 
+pub mod stamps;
 pub mod zenoh_in;
 
 use crate::codec::{self, Format, RosType};
@@ -33,6 +34,12 @@ pub enum Rejection {
         previous_us: Micros,
         now_us: Micros,
     },
+    /// The sensor's timestamp jumped further ahead than the time that passed.
+    TimeAhead {
+        previous_us: Micros,
+        now_us: Micros,
+        elapsed_us: Micros,
+    },
 }
 
 impl std::fmt::Display for Rejection {
@@ -47,6 +54,16 @@ impl std::fmt::Display for Rejection {
                 f,
                 "timestamp went backwards by {:.3} ms ({previous_us} µs → {now_us} µs)",
                 (previous_us - now_us) as f64 / 1000.0
+            ),
+            Rejection::TimeAhead {
+                previous_us,
+                now_us,
+                elapsed_us,
+            } => write!(
+                f,
+                "timestamp jumped ahead by {:.3} ms in {:.3} ms ({previous_us} µs → {now_us} µs)",
+                now_us.saturating_sub(*previous_us) as f64 / 1000.0,
+                *elapsed_us as f64 / 1000.0
             ),
         }
     }
@@ -66,6 +83,8 @@ pub struct InputCounters {
     pub ignored: AtomicU64,
     /// Accepted samples dropped because the estimator queue was full.
     pub dropped: AtomicU64,
+    /// The sensor's clock restarted (a consistent new series of stamps was adopted).
+    pub clock_restarts: AtomicU64,
 }
 
 #[derive(Debug, Default)]
@@ -73,7 +92,9 @@ struct InputHistory {
     last_error: Option<String>,
     last_error_us: Option<Micros>,
     last_arrival_us: Option<Micros>,
-    last_stamp_us: Option<Micros>,
+    stamps: stamps::StampTracker,
+    /// The last clock restart, as text.
+    last_clock_restart: Option<String>,
     rate: RateMeter,
     last_log_us: Option<Micros>,
     suppressed_logs: u64,
@@ -130,6 +151,9 @@ pub struct InputStatus {
     pub rejected: u64,
     pub ignored: u64,
     pub dropped: u64,
+    /// Times the sensor's clock restarted (reboot, clock step) and was followed.
+    pub clock_restarts: u64,
+    pub last_clock_restart: Option<String>,
     pub last_error: Option<String>,
     pub last_error_age_ms: Option<f64>,
     pub rate_hz: f64,
@@ -255,6 +279,8 @@ impl InputState {
             rejected: c.rejected.load(Relaxed),
             ignored: c.ignored.load(Relaxed),
             dropped: c.dropped.load(Relaxed),
+            clock_restarts: c.clock_restarts.load(Relaxed),
+            last_clock_restart: h.last_clock_restart.clone(),
             last_error: h.last_error.clone(),
             last_error_age_ms,
             rate_hz,
@@ -397,21 +423,46 @@ impl Ingest {
             }
             {
                 let mut h = input.history();
-                if let (Some(prev), Some(now)) = (h.last_stamp_us, d.stamp_us) {
-                    if now < prev {
+                if let Some(stamp) = d.stamp_us {
+                    use stamps::StampVerdict as V;
+                    let why = match h.stamps.check(stamp, arrival_us) {
+                        V::Accept => None,
+                        V::Backwards {
+                            previous_us,
+                            now_us,
+                        } => Some(Rejection::TimeBackwards {
+                            previous_us,
+                            now_us,
+                        }),
+                        V::Ahead {
+                            previous_us,
+                            now_us,
+                            elapsed_us,
+                        } => Some(Rejection::TimeAhead {
+                            previous_us,
+                            now_us,
+                            elapsed_us,
+                        }),
+                        V::Restart {
+                            previous_us,
+                            now_us,
+                        } => {
+                            let text = format!(
+                                "the sensor's clock restarted ({:.3} s → {:.3} s): following the new series",
+                                previous_us as f64 * 1e-6,
+                                now_us as f64 * 1e-6
+                            );
+                            tracing::warn!(input = %input.id, key = %input.config.key, "{text}");
+                            h.last_clock_restart = Some(text);
+                            c.clock_restarts.fetch_add(1, Relaxed);
+                            None
+                        }
+                    };
+                    if let Some(why) = why {
                         drop(h);
-                        input.reject(
-                            Rejection::TimeBackwards {
-                                previous_us: prev,
-                                now_us: now,
-                            },
-                            arrival_us,
-                        );
+                        input.reject(why, arrival_us);
                         continue;
                     }
-                }
-                if d.stamp_us.is_some() {
-                    h.last_stamp_us = d.stamp_us;
                 }
                 h.last_arrival_us = Some(arrival_us);
                 h.rate.tick(arrival_us);
@@ -522,6 +573,87 @@ mod tests {
         assert!(err.contains("backwards"), "{err}");
         assert_eq!(s.health.state, HealthState::Degraded);
         assert_eq!(s.health.reasons[0].code, "rejecting");
+    }
+
+    /// mavlink-server's JSON of an ArduPilot ATTITUDE at `time_boot_ms`.
+    fn attitude_json(boot_ms: u32) -> String {
+        format!(
+            r#"{{"header":{{"system_id":1,"component_id":1,"sequence":7,"message_id":30}},"message":{{"type":"ATTITUDE","time_boot_ms":{boot_ms},"roll":0.01,"pitch":-0.02,"yaw":1.5,"rollspeed":0,"pitchspeed":0,"yawspeed":0}}}}"#
+        )
+    }
+
+    #[test]
+    fn an_autopilot_reboot_restarts_the_clock_and_the_input_carries_on() {
+        let ing = ingest_with(
+            "[[inputs]]\nid=\"attitude\"\nkind=\"attitude\"\nkey=\"mavlink/*/*/ATTITUDE\"\nformat=\"mavlink-json\"\nrate_hz=50\n",
+        );
+        let input = ing.inputs[0].clone();
+        let key = "mavlink/1/1/ATTITUDE";
+        let mut accepted = 0;
+        // 150 samples up to 600 s of autopilot time, then it reboots: time_boot_ms
+        // starts again at 1 s, as the reliability issue saw, for 5 s at 50 Hz.
+        for i in 0..150u32 {
+            let t = 1_000_000 + i64::from(i) * 20_000;
+            accepted += ing
+                .accept(&input, key, attitude_json(597_000 + i * 20).as_bytes(), t)
+                .len();
+        }
+        assert_eq!(accepted, 150);
+        let mut after = 0;
+        for i in 0..250u32 {
+            let t = 5_000_000 + i64::from(i) * 20_000;
+            after += ing
+                .accept(&input, key, attitude_json(1_000 + i * 20).as_bytes(), t)
+                .len();
+        }
+        // The first two of the new series are refused, then it is the series.
+        assert_eq!(after, 248);
+        let s = input.status(10_000_000);
+        assert_eq!((s.rejected, s.clock_restarts), (2, 1));
+        let text = s.last_clock_restart.expect("restart text");
+        assert!(text.contains("restarted (599.980 s → 1.040 s)"), "{text}");
+        assert_eq!(
+            s.health.state,
+            HealthState::Degraded,
+            "recent rejections show"
+        );
+        assert_eq!(input.status(16_000_000).health.state, HealthState::Stale);
+    }
+
+    #[test]
+    fn one_stamp_from_the_far_future_costs_only_itself() {
+        let ing = ingest_with(JSON_IMU);
+        let input = ing.inputs[0].clone();
+        let mut n = 0;
+        for i in 0..100i64 {
+            n += ing
+                .accept(
+                    &input,
+                    "imu",
+                    imu_json(1_000_000 + i * 10_000).as_bytes(),
+                    1_000_000 + i * 10_000,
+                )
+                .len();
+        }
+        // A mutated stamp 8.6 years ahead (the fuzzing campaign's finding).
+        let garbage = imu_json(1_000_000 + 273_678_336_000_000);
+        assert!(ing
+            .accept(&input, "imu", garbage.as_bytes(), 2_000_000)
+            .is_empty());
+        for i in 100..200i64 {
+            n += ing
+                .accept(
+                    &input,
+                    "imu",
+                    imu_json(1_000_000 + i * 10_000).as_bytes(),
+                    1_000_000 + i * 10_000,
+                )
+                .len();
+        }
+        assert_eq!(n, 200, "every genuine sample accepted");
+        let s = input.status(3_000_000);
+        assert_eq!((s.rejected, s.clock_restarts), (1, 0));
+        assert!(s.last_error.expect("error").contains("jumped ahead"));
     }
 
     #[test]

@@ -115,6 +115,8 @@ pub struct MavlinkStats {
     /// VISION_POSITION_ESTIMATEs handed to the links.
     pub vpe_sent: AtomicU64,
     pub heartbeats: AtomicU64,
+    /// SET_GPS_GLOBAL_ORIGIN messages sent (`[mavlink] ekf_origin`).
+    pub origin_sent: AtomicU64,
     /// Ticks with nothing sent because the estimate was invalid, stale or non-finite.
     pub withheld: AtomicU64,
     pub not_sending_reason: Mutex<Option<String>>,
@@ -159,6 +161,7 @@ impl MavlinkStats {
             "rate_hz": self.rate.lock().map(|r| r.rate_hz()).unwrap_or(0.0),
             "sent": self.vpe_sent.load(Relaxed),
             "heartbeats": self.heartbeats.load(Relaxed),
+            "origin_sent": self.origin_sent.load(Relaxed),
             "withheld": self.withheld.load(Relaxed),
             "dropped": sum(|l| l.dropped),
             "errors": sum(|l| l.errors),
@@ -470,6 +473,8 @@ pub async fn run(
     let max_age_us = (cfg.max_age_ms * 1e3) as i64;
     let mut seq: u8 = 0;
     let mut last_heartbeat: Option<i64> = None;
+    let mut last_origin: Option<i64> = None;
+    let started = now_us();
     let mut last_sent_pose_us: Option<i64> = None;
     tracing::info!(
         endpoints = ?cfg.endpoints,
@@ -503,6 +508,25 @@ pub async fn run(
             last_heartbeat = Some(now);
             frames.push(vpe::heartbeat(valid_now));
             stats.heartbeats.fetch_add(1, Relaxed);
+            if let Some(origin) = cfg.ekf_origin {
+                let since_start = (now - started) as f64 * 1e-6;
+                let burst = since_start <= crate::config::ORIGIN_BURST_S;
+                let resend = last_origin
+                    .is_none_or(|l| (now - l) as f64 * 1e-6 >= crate::config::ORIGIN_RESEND_S);
+                if burst || resend {
+                    match vpe::origin_messages(origin, cfg.target_system, now.max(0) as u64) {
+                        Ok([set_origin, home]) => {
+                            last_origin = Some(now);
+                            frames.push(set_origin);
+                            if burst {
+                                frames.push(home);
+                            }
+                            stats.origin_sent.fetch_add(1, Relaxed);
+                        }
+                        Err(e) => tracing::warn!("EKF origin not sent: {e}"),
+                    }
+                }
+            }
         }
         let outcome = match current.as_deref() {
             _ if !due => Ok(None),

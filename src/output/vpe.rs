@@ -210,6 +210,55 @@ pub fn pose_messages(
     Ok(out)
 }
 
+/// The EKF origin and home for an autopilot with no GNSS (ArduPilot's non-GPS
+/// navigation, as vision_to_mavros sets them): SET_GPS_GLOBAL_ORIGIN and
+/// SET_HOME_POSITION at the configured origin (lat, lon in degrees, alt in metres MSL),
+/// home at the local origin facing north. Out-of-range values are an error, never a frame.
+/// The messages are deprecated in favour of MAV_CMD_DO_SET_GLOBAL_ORIGIN (2025) and
+/// MAV_CMD_DO_SET_HOME, but they are what ArduPilot 4.6 and PX4 act on today.
+#[allow(deprecated)]
+pub fn origin_messages(
+    origin: [f64; 3],
+    target_system: u8,
+    time_usec: u64,
+) -> Result<[MavMessage; 2], VpeError> {
+    let [lat, lon, alt] = origin;
+    let ok = lat.is_finite()
+        && lon.is_finite()
+        && alt.is_finite()
+        && lat.abs() <= 90.0
+        && lon.abs() <= 180.0
+        && alt.abs() < 1.0e6;
+    if !ok {
+        return Err(VpeError::Invalid(format!(
+            "EKF origin ({lat}, {lon}, {alt}) is not a place on Earth"
+        )));
+    }
+    let (lat, lon, alt) = (
+        (lat * 1e7).round() as i32,
+        (lon * 1e7).round() as i32,
+        (alt * 1e3).round() as i32,
+    );
+    Ok([
+        MavMessage::SET_GPS_GLOBAL_ORIGIN(mavlink::dialects::common::SET_GPS_GLOBAL_ORIGIN_DATA {
+            latitude: lat,
+            longitude: lon,
+            altitude: alt,
+            target_system,
+            time_usec,
+        }),
+        MavMessage::SET_HOME_POSITION(mavlink::dialects::common::SET_HOME_POSITION_DATA {
+            latitude: lat,
+            longitude: lon,
+            altitude: alt,
+            q: [1.0, 0.0, 0.0, 0.0],
+            target_system,
+            time_usec,
+            ..Default::default()
+        }),
+    ])
+}
+
 /// HEARTBEAT of an onboard component: healthy (`ACTIVE`) while the estimate is valid,
 /// `CRITICAL` while it is not (so a ground station shows why VPE stopped).
 pub fn heartbeat(estimate_valid: bool) -> MavMessage {

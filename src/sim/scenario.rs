@@ -54,6 +54,14 @@ pub const NAMES: &[(&str, &str)] = &[
         "outdoor",
         "figure-eight outdoors: GPS + IMU + flow + range, no T265",
     ),
+    (
+        "flow-range",
+        "figure-eight indoors on flow + range + attitude + IMU only: valid on the ground before take-off and after landing",
+    ),
+    (
+        "flow-loss",
+        "flow-range, and the flow stops in flight from 40 to 50 s: nothing aids the horizontal position",
+    ),
     ("gps-loss", "figure-eight; GPS has no fix from 40 to 70 s"),
     (
         "gps-jump",
@@ -100,6 +108,12 @@ pub fn scenario(name: &str) -> Option<Scenario> {
         "figure8" => (Profile::Figure8, all, vec![]),
         "indoor" => (Profile::Indoor, streams_without(&["gps"]), vec![]),
         "outdoor" => (Profile::Figure8, streams_without(&["t265"]), vec![]),
+        "flow-range" => (Profile::Indoor, streams_without(&["gps", "t265"]), vec![]),
+        "flow-loss" => (
+            Profile::Indoor,
+            streams_without(&["gps", "t265"]),
+            vec![fault("flow", FaultKind::Stop, 40.0, 50.0)],
+        ),
         "gps-loss" => (
             Profile::Figure8,
             all,

@@ -161,6 +161,15 @@ impl SensorModels {
             SensorKind::Flow => SensorData::Flow(self.flow(s)),
             SensorKind::Range => SensorData::Range(self.range(s)),
             SensorKind::Gnss => SensorData::Gnss(self.gps(s)),
+            // The autopilot's land detector: on the ground below 5 cm.
+            SensorKind::VehicleState => SensorData::VehicleState(VehicleState {
+                armed: None,
+                landed: Some(if s.position.z < 0.05 {
+                    LandedState::OnGround
+                } else {
+                    LandedState::InAir
+                }),
+            }),
             SensorKind::AutopilotEstimate => SensorData::AutopilotEstimate(AutopilotEstimate {
                 local_position: Some(s.position),
                 geodetic: None,

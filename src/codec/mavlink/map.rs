@@ -12,10 +12,13 @@
 use super::fields::Fields;
 use crate::codec::error::{in_range, DecodeError};
 use crate::sample::{
-    frames, Attitude, AutopilotEstimate, GnssFix, GnssFixType, Imu, Micros, Odometry, OpticalFlow,
-    Range, SensorData, Tof,
+    frames, Attitude, AutopilotEstimate, GnssFix, GnssFixType, Imu, LandedState, Micros, Odometry,
+    OpticalFlow, Range, SensorData, Tof, VehicleState,
 };
-use ::mavlink::dialects::common::{self, GpsFixType, HighresImuUpdatedFlags, MavSensorOrientation};
+use ::mavlink::dialects::common::{
+    self, GpsFixType, HighresImuUpdatedFlags, MavAutopilot, MavLandedState, MavModeFlag,
+    MavSensorOrientation, MavType,
+};
 use ::mavlink::MessageData;
 use nalgebra::{Matrix3, Matrix6, Quaternion, UnitQuaternion, Vector2, Vector3};
 
@@ -37,10 +40,12 @@ pub(super) enum SensorMsg {
     GlobalPositionInt,
     LocalPositionNed,
     Odometry,
+    Heartbeat,
+    ExtendedSysState,
 }
 
 impl SensorMsg {
-    pub const ALL: [SensorMsg; 12] = [
+    pub const ALL: [SensorMsg; 14] = [
         SensorMsg::HighresImu,
         SensorMsg::ScaledImu,
         SensorMsg::RawImu,
@@ -53,6 +58,8 @@ impl SensorMsg {
         SensorMsg::GlobalPositionInt,
         SensorMsg::LocalPositionNed,
         SensorMsg::Odometry,
+        SensorMsg::Heartbeat,
+        SensorMsg::ExtendedSysState,
     ];
 
     /// (name, id) from rust-mavlink's definitions, so no number is typed twice.
@@ -73,6 +80,8 @@ impl SensorMsg {
             SensorMsg::GlobalPositionInt => m::<common::GLOBAL_POSITION_INT_DATA>(),
             SensorMsg::LocalPositionNed => m::<common::LOCAL_POSITION_NED_DATA>(),
             SensorMsg::Odometry => m::<common::ODOMETRY_DATA>(),
+            SensorMsg::Heartbeat => m::<common::HEARTBEAT_DATA>(),
+            SensorMsg::ExtendedSysState => m::<common::EXTENDED_SYS_STATE_DATA>(),
         }
     }
 
@@ -115,7 +124,64 @@ pub(super) fn decode(sensor: SensorMsg, f: &Fields) -> Result<Mapped, DecodeErro
         SensorMsg::GlobalPositionInt => global_position_int(f),
         SensorMsg::LocalPositionNed => local_position_ned(f),
         SensorMsg::Odometry => odometry(f),
+        SensorMsg::Heartbeat => heartbeat(f),
+        SensorMsg::ExtendedSysState => extended_sys_state(f),
     }
+}
+
+/// HEARTBEAT of an autopilot → armed. Heartbeats of anything else on the link (ground
+/// stations, cameras, companions like us) say nothing about the vehicle: `None`.
+fn heartbeat(f: &Fields) -> Result<Mapped, DecodeError> {
+    let autopilot: MavAutopilot =
+        f.enum_value("autopilot", "a MAV_AUTOPILOT entry {\"type\": NAME}")?;
+    let mavtype: MavType = f.enum_value("mavtype", "a MAV_TYPE entry {\"type\": NAME}")?;
+    let not_a_vehicle = matches!(
+        mavtype,
+        MavType::MAV_TYPE_GCS
+            | MavType::MAV_TYPE_ONBOARD_CONTROLLER
+            | MavType::MAV_TYPE_GIMBAL
+            | MavType::MAV_TYPE_CAMERA
+            | MavType::MAV_TYPE_ADSB
+            | MavType::MAV_TYPE_ANTENNA_TRACKER
+    );
+    if autopilot == MavAutopilot::MAV_AUTOPILOT_INVALID || not_a_vehicle {
+        return Ok(None);
+    }
+    let armed_bit = u64::from(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED.bits());
+    let Some(mode) = f.flags("base_mode", |n| {
+        MavModeFlag::from_name(n).map(|b| u64::from(b.bits()))
+    })?
+    else {
+        // A flag name we do not know: the armed bit cannot be read safely.
+        return Ok(None);
+    };
+    Ok(Some((
+        None,
+        SensorData::VehicleState(VehicleState {
+            armed: Some(mode & armed_bit != 0),
+            landed: None,
+        }),
+    )))
+}
+
+/// EXTENDED_SYS_STATE → landed state (`None` when the autopilot does not know it).
+fn extended_sys_state(f: &Fields) -> Result<Mapped, DecodeError> {
+    let landed: MavLandedState =
+        f.enum_value("landed_state", "a MAV_LANDED_STATE entry {\"type\": NAME}")?;
+    let landed = match landed {
+        MavLandedState::MAV_LANDED_STATE_UNDEFINED => return Ok(None),
+        MavLandedState::MAV_LANDED_STATE_ON_GROUND => LandedState::OnGround,
+        MavLandedState::MAV_LANDED_STATE_IN_AIR => LandedState::InAir,
+        MavLandedState::MAV_LANDED_STATE_TAKEOFF => LandedState::Takeoff,
+        MavLandedState::MAV_LANDED_STATE_LANDING => LandedState::Landing,
+    };
+    Ok(Some((
+        None,
+        SensorData::VehicleState(VehicleState {
+            armed: None,
+            landed: Some(landed),
+        }),
+    )))
 }
 
 // ------------------------------------------------------------------------ helpers

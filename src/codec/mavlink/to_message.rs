@@ -4,7 +4,7 @@
 
 use super::map::{transform_cov, FRD_FLU, NED_ENU};
 use crate::codec::error::EncodeError;
-use crate::sample::{frames, GnssFixType, Micros, SensorData};
+use crate::sample::{frames, GnssFixType, LandedState, Micros, SensorData};
 use ::mavlink::dialects::common::{
     self, GpsFixType, HighresImuUpdatedFlags, MavDistanceSensor, MavEstimatorType, MavFrame,
     MavMessage, MavSensorOrientation,
@@ -231,6 +231,43 @@ pub fn sample_to_message(stamp_us: Micros, data: &SensorData) -> Result<MavMessa
                 estimator_type: MavEstimatorType::MAV_ESTIMATOR_TYPE_UNKNOWN,
                 // 0 is "unknown".
                 quality: o.quality.unwrap_or(0),
+            }))
+        }
+        SensorData::VehicleState(v) => {
+            use common::{MavAutopilot, MavLandedState, MavModeFlag, MavState, MavType};
+            if let Some(l) = v.landed {
+                return Ok(MavMessage::EXTENDED_SYS_STATE(
+                    common::EXTENDED_SYS_STATE_DATA {
+                        vtol_state: common::MavVtolState::MAV_VTOL_STATE_UNDEFINED,
+                        landed_state: match l {
+                            LandedState::OnGround => MavLandedState::MAV_LANDED_STATE_ON_GROUND,
+                            LandedState::InAir => MavLandedState::MAV_LANDED_STATE_IN_AIR,
+                            LandedState::Takeoff => MavLandedState::MAV_LANDED_STATE_TAKEOFF,
+                            LandedState::Landing => MavLandedState::MAV_LANDED_STATE_LANDING,
+                        },
+                    },
+                ));
+            }
+            let Some(armed) = v.armed else {
+                return Err(EncodeError::Unsupported(
+                    "a vehicle state with neither armed nor landed".into(),
+                ));
+            };
+            let mut base_mode = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED;
+            if armed {
+                base_mode |= MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
+            }
+            Ok(MavMessage::HEARTBEAT(common::HEARTBEAT_DATA {
+                custom_mode: 0,
+                mavtype: MavType::MAV_TYPE_QUADROTOR,
+                autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+                base_mode,
+                system_status: if armed {
+                    MavState::MAV_STATE_ACTIVE
+                } else {
+                    MavState::MAV_STATE_STANDBY
+                },
+                mavlink_version: 3,
             }))
         }
         SensorData::AutopilotEstimate(e) => {

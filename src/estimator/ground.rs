@@ -1,0 +1,499 @@
+//! No horizontal aiding: constrain the state instead of dead-reckoning on the IMU, as
+//! the anchors do (PX4 EKF2's fake position and zero-velocity update, ArduPilot EKF3's
+//! constant-position mode). Same verbs as the aiding sources: checks (on the ground?
+//! at rest?), control (start/continue conditions), fuse.
+//!
+//! - **On the ground** (ground evidence and at rest, below): the vehicle is where it
+//!   was when aiding stopped. Fused every [`FUSE_EVERY_US`]: zero velocity (σ
+//!   `ground_vel_noise`), the held horizontal position (σ `ground_pos_noise`) and,
+//!   when the range finder reads at or below its minimum, the height above the ground
+//!   within `[0, min]`. This counts as aiding: the estimate is valid, so an autopilot
+//!   can arm on it before flow or a camera can see anything (a flow + range vehicle
+//!   on its landing gear). A flow + range vehicle with nothing else also starts its
+//!   filter here.
+//! - **Unaided otherwise** (in the air, carried, or stillness unknown): the held
+//!   position with σ `fake_pos_noise` (10 m, EKF2's `EKF2_NOAID_NOISE`), which bounds
+//!   the covariance and keeps IMU errors from running away; not aiding, so the estimate
+//!   turns invalid after `aiding_timeout_ms` and VPE stops.
+//!
+//! Ground evidence: the autopilot says landed (EXTENDED_SYS_STATE / PX4
+//! vehicle_land_detected) or disarmed (a multirotor on its gear), or a downward range
+//! finder reads at or below its minimum. At rest: the IMU's low-passed specific force
+//! is gravity alone and its low-passed rate near zero for [`REST_AFTER_US`] (a
+//! vibrating but standing vehicle averages out; a vehicle carried by hand does not);
+//! without an IMU, only the autopilot's landed state counts. When aiding returns the
+//! track continues from the held position: no jump, no reset.
+
+use super::ekf::{dvec, GRAVITY, IDX_P, IDX_TERRAIN, IDX_V};
+use super::{Core, Ctx};
+use crate::sample::{LandedState, VehicleState};
+use nalgebra::{DMatrix, Vector3};
+
+/// Constraints are fused at most this often, µs (EKF2 fuses its fake position at 5 Hz).
+pub const FUSE_EVERY_US: i64 = 100_000;
+/// The IMU must look still this long before the vehicle counts as at rest, µs.
+const REST_AFTER_US: i64 = 500_000;
+/// Low-pass time constant of the stillness test, s (averages out motor vibration).
+const REST_LPF_TAU_S: f64 = 0.2;
+/// The slow average the filtered specific force is compared with, s.
+const REST_SLOW_TAU_S: f64 = 2.0;
+/// At rest: low-passed |specific force| − g and low-passed |rate| below these.
+const REST_ACCEL: f64 = 0.25;
+const REST_GYRO: f64 = 0.05;
+/// Evidence older than this does not count, µs.
+const RANGE_FRESH_US: i64 = 500_000;
+const STATE_FRESH_US: i64 = 3_000_000;
+const IMU_FRESH_US: i64 = 200_000;
+/// A handled vehicle stays invalid this long after the last sign of handling, µs.
+const HANDLED_HOLD_US: i64 = 1_000_000;
+/// Horizontal speed above which a disarmed vehicle counts as moved, m/s.
+const HANDLED_SPEED: f64 = 0.3;
+/// The filter starts on the ground only after this long at rest with nothing else
+/// starting it, µs (a GNSS fix or a camera normally start it at once).
+const INIT_AFTER_US: i64 = 1_000_000;
+
+/// Which constraint holds the state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Constraint {
+    OnGround,
+    FakePosition,
+}
+
+impl Constraint {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Constraint::OnGround => "on_ground",
+            Constraint::FakePosition => "fake_position",
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct GroundState {
+    /// The autopilot's latest word: (time, value).
+    pub armed: Option<(i64, bool)>,
+    pub landed: Option<(i64, LandedState)>,
+    /// Latest downward range reading at or below its minimum: (time, reading, minimum).
+    pub range_low: Option<(i64, f64, f64)>,
+    /// Latest downward range reading inside its limits (the vehicle is up), time.
+    pub range_in_range: Option<i64>,
+    /// Low-passed specific force and rate (body), and the last IMU time; the slow
+    /// low-pass of the specific force is gravity's direction in the body.
+    accel_lpf: Option<Vector3<f64>>,
+    accel_slow: Option<Vector3<f64>>,
+    gyro_lpf: Option<Vector3<f64>>,
+    imu_t: Option<i64>,
+    /// Since when the IMU has looked still.
+    still_since: Option<i64>,
+    /// Last real horizontal aiding (GNSS, odometry, flow), time.
+    pub last_h_aiding: Option<i64>,
+    /// Held position while constrained.
+    pub hold: Option<Vector3<f64>>,
+    pub active: Option<Constraint>,
+    pub since: Option<i64>,
+    last_fuse: Option<i64>,
+    /// Since when the vehicle has been on the ground (for starting the filter).
+    on_ground_since: Option<i64>,
+    /// Disarmed but moving (carried by hand): the estimate is not valid until then.
+    pub handled_until: Option<i64>,
+}
+
+/// Checks: an autopilot state sample.
+pub fn process_vehicle_state(core: &mut Core, t: i64, source: &str, v: &VehicleState) {
+    if let Some(a) = v.armed {
+        core.ground.armed = Some((t, a));
+    }
+    if let Some(l) = v.landed {
+        core.ground.landed = Some((t, l));
+    }
+    core.mark_used(t, source);
+}
+
+/// Checks: an IMU sample for the stillness test.
+pub fn imu_sample(
+    g: &mut GroundState,
+    t: i64,
+    gyro: Option<Vector3<f64>>,
+    accel: Option<Vector3<f64>>,
+) {
+    let dt = g
+        .imu_t
+        .map_or(0.0, |t0| ((t - t0) as f64 * 1e-6).clamp(0.0, 0.5));
+    g.imu_t = Some(t);
+    let lpf = |y: &mut Option<Vector3<f64>>, x: Option<Vector3<f64>>, tau: f64| {
+        let alpha = (dt / (dt + tau)).min(1.0);
+        if let Some(x) = x {
+            *y = Some(match *y {
+                Some(y0) if dt > 0.0 => y0 + (x - y0) * alpha,
+                Some(y0) => y0,
+                None => x,
+            });
+        }
+    };
+    lpf(&mut g.accel_lpf, accel, REST_LPF_TAU_S);
+    lpf(&mut g.accel_slow, accel, REST_SLOW_TAU_S);
+    lpf(&mut g.gyro_lpf, gyro, REST_LPF_TAU_S);
+    // Still: the specific force is gravity alone (its magnitude) and steady (no
+    // departure from its slow average in any direction: a carry sways sideways, which
+    // the magnitude alone hardly shows), and no rotation.
+    let accel_still = match (g.accel_lpf, g.accel_slow) {
+        (Some(f), Some(s)) => {
+            (f.norm() - GRAVITY).abs() < REST_ACCEL && (f - s).norm() < REST_ACCEL
+        }
+        _ => true,
+    };
+    let still = accel_still
+        && g.gyro_lpf.is_none_or(|w| w.norm() < REST_GYRO)
+        && (g.accel_lpf.is_some() || g.gyro_lpf.is_some());
+    if !still {
+        g.still_since = None;
+    } else if g.still_since.is_none() {
+        g.still_since = Some(t);
+    }
+}
+
+/// Checks: a downward range reading at or below its minimum (the vehicle is on its
+/// gear), or inside its limits.
+pub fn range_sample(g: &mut GroundState, t: i64, reading: f64, min: f64, low: bool) {
+    if low {
+        g.range_low = Some((t, reading, min));
+    } else {
+        g.range_in_range = Some(t);
+    }
+}
+
+impl GroundState {
+    /// The autopilot says disarmed (fresh).
+    fn disarmed_now(&self, t: i64) -> bool {
+        self.armed
+            .is_some_and(|(at, a)| !a && t - at <= STATE_FRESH_US)
+    }
+
+    /// Disarmed, and yet lifted off its gear or moving: carried by hand (or on a cart).
+    /// Flow and range may still track it, but nothing flies on such a pose: invalid
+    /// until [`HANDLED_HOLD_US`] after it stops.
+    pub fn handled(&self, t: i64) -> bool {
+        self.handled_until.is_some_and(|u| t <= u)
+    }
+
+    fn landed_now(&self, t: i64) -> Option<bool> {
+        let landed = self
+            .landed
+            .filter(|(lt, _)| t - lt <= STATE_FRESH_US)
+            .map(|(_, l)| l == LandedState::OnGround);
+        let disarmed = self
+            .armed
+            .filter(|(at, _)| t - at <= STATE_FRESH_US)
+            .map(|(_, a)| !a);
+        match (landed, disarmed) {
+            // The land detector knows better than the arming state (armed on the ground
+            // before take-off, or disarmed in a carry).
+            (Some(l), _) => Some(l),
+            (None, d) => d,
+        }
+    }
+
+    pub fn range_says_ground(&self, t: i64) -> bool {
+        let low = self.range_low.filter(|(rt, _, _)| t - rt <= RANGE_FRESH_US);
+        low.is_some_and(|(rt, _, _)| self.range_in_range.is_none_or(|u| u < rt))
+    }
+
+    /// At rest: the IMU still for long enough; without an IMU, the autopilot's word.
+    fn at_rest(&self, t: i64) -> bool {
+        if self.imu_t.is_some_and(|it| t - it <= IMU_FRESH_US) {
+            self.still_since.is_some_and(|s| t - s >= REST_AFTER_US)
+        } else {
+            self.landed_now(t) == Some(true)
+        }
+    }
+
+    /// On the ground: ground evidence and at rest. The autopilot saying "in the air"
+    /// overrides a range reading (a range finder over a close obstacle reads low).
+    pub fn on_ground(&self, t: i64) -> bool {
+        let evidence = match self.landed_now(t) {
+            Some(l) => l,
+            None => self.range_says_ground(t),
+        };
+        evidence && self.at_rest(t)
+    }
+}
+
+/// Control and fuse, after each sample. Horizontal aiding fused recently releases the
+/// constraint; otherwise the one that applies is fused at [`FUSE_EVERY_US`].
+pub fn control(core: &mut Core, ctx: &Ctx, t: i64) {
+    if core.mode_wrls {
+        return;
+    }
+    let on_ground = core.ground.on_ground(t);
+    if core.ground.disarmed_now(t) {
+        let lifted = core
+            .ground
+            .range_in_range
+            .is_some_and(|u| t - u <= RANGE_FRESH_US)
+            && !core.ground.range_says_ground(t);
+        let moving = core
+            .ekf
+            .as_ref()
+            .is_some_and(|e| e.vel().xy().norm() > HANDLED_SPEED);
+        let imu_moving =
+            core.ground.imu_t.is_some_and(|it| t - it <= IMU_FRESH_US) && !core.ground.at_rest(t);
+        if lifted || moving || imu_moving {
+            if !core.ground.handled(t) {
+                core.event(
+                    t,
+                    "handled",
+                    None,
+                    "disarmed but moving: carried, the estimate is not valid until it is set down".into(),
+                    serde_json::json!({ "lifted": lifted, "moving": moving, "imu_moving": imu_moving }),
+                );
+            }
+            core.ground.handled_until = Some(t + HANDLED_HOLD_US);
+        }
+    }
+    if on_ground {
+        core.ground.on_ground_since.get_or_insert(t);
+    } else {
+        core.ground.on_ground_since = None;
+    }
+    if core.ekf.is_none() {
+        let ready = core
+            .ground
+            .on_ground_since
+            .is_some_and(|s| t - s >= INIT_AFTER_US);
+        if ready && core.att.known() {
+            let h = ground_height(core, t).map_or(0.0, |(h, _)| h);
+            let var = Vector3::repeat(ctx.cfg.init_pos_var);
+            let v = Some(Vector3::zeros());
+            let vv = Some(ctx.cfg.ground_vel_noise.powi(2));
+            core.initialise(t, "ground", Vector3::new(0.0, 0.0, h), var, v, vv, ctx);
+        }
+        return;
+    }
+    // Horizontal aiding within the aiding timeout: a 2 Hz GNSS between its fixes is
+    // still aiding.
+    let gap = (ctx.cfg.aiding_timeout_ms * 1000.0) as i64;
+    let aided = core
+        .ground
+        .last_h_aiding
+        .is_some_and(|l| t - l <= gap && l <= t);
+    let want = if aided {
+        None
+    } else if on_ground {
+        Some(Constraint::OnGround)
+    } else {
+        Some(Constraint::FakePosition)
+    };
+    if want != core.ground.active {
+        transition(core, t, want);
+    }
+    let Some(active) = want else { return };
+    if core
+        .ground
+        .last_fuse
+        .is_some_and(|l| t - l < FUSE_EVERY_US && l <= t)
+    {
+        return;
+    }
+    core.ground.last_fuse = Some(t);
+    let Some(hold) = core.ground.hold else { return };
+    let cfg = ctx.cfg;
+    match active {
+        Constraint::OnGround => {
+            let pn = cfg.ground_pos_noise.powi(2);
+            let vn = cfg.ground_vel_noise.powi(2);
+            let mut ok = fuse_force(core, &[IDX_V, IDX_V + 1, IDX_V + 2], Vector3::zeros(), vn);
+            let xy = Vector3::new(hold.x, hold.y, 0.0);
+            ok &= fuse_force(core, &[IDX_P, IDX_P + 1], xy, pn);
+            if let Some((h, var)) = ground_height(core, t) {
+                fuse_height_force(core, h, var);
+            }
+            if ok {
+                core.mark_aiding(t, "ground", "ground");
+            }
+        }
+        Constraint::FakePosition => {
+            let n = cfg.fake_pos_noise.powi(2);
+            fuse_force(core, &[IDX_P, IDX_P + 1, IDX_P + 2], hold, n);
+        }
+    }
+}
+
+/// Height above the ground while the range finder reads at or below its minimum: the
+/// middle of `[0, min]`, σ half of it (at least 5 cm), as a variance.
+fn ground_height(core: &Core, t: i64) -> Option<(f64, f64)> {
+    let g = &core.ground;
+    if !g.range_says_ground(t) {
+        return None;
+    }
+    let (_, _, min) = g.range_low?;
+    let s = (0.5 * min).max(0.05);
+    Some((0.5 * min, s * s))
+}
+
+fn transition(core: &mut Core, t: i64, to: Option<Constraint>) {
+    let from = core.ground.active;
+    let pos = core.ekf.as_ref().map(|e| e.pos());
+    match to {
+        Some(c) => {
+            // The held point is where aiding left the vehicle; kept when switching
+            // between the two constraints.
+            if core.ground.hold.is_none() {
+                core.ground.hold = pos;
+            }
+            let p = core.ground.hold.unwrap_or_else(Vector3::zeros);
+            let message = match c {
+                Constraint::OnGround => format!(
+                    "on the ground without horizontal aiding: holding ({:.2}, {:.2}) with zero velocity",
+                    p.x, p.y
+                ),
+                Constraint::FakePosition => format!(
+                    "no horizontal aiding and not at rest: position held loosely at ({:.2}, {:.2}, {:.2}) to bound the estimate (invalid until aiding returns)",
+                    p.x, p.y, p.z
+                ),
+            };
+            core.event(
+                t,
+                "constraint",
+                None,
+                message,
+                serde_json::json!({ "constraint": c.as_str(), "hold": [p.x, p.y, p.z] }),
+            );
+            if from.is_none() {
+                core.ground.since = Some(t);
+            }
+        }
+        None => {
+            let held_s = core.ground.since.map_or(0.0, |s| (t - s) as f64 * 1e-6);
+            core.event(
+                t,
+                "constraint",
+                None,
+                format!("horizontal aiding resumed after {held_s:.1} s of constraints"),
+                serde_json::json!({ "constraint": null, "held_s": held_s }),
+            );
+            core.ground.hold = None;
+            core.ground.since = None;
+            core.ground.last_fuse = None;
+        }
+    }
+    core.ground.active = to;
+}
+
+/// Fuse a direct measurement of the states `idx` (values `z[..idx.len()]`, variance
+/// `var` each), ungated: a constraint is a fact about the vehicle, not a sensor that
+/// may be wrong. Returns whether the update went through (a singular S does not).
+fn fuse_force(core: &mut Core, idx: &[usize], z: Vector3<f64>, var: f64) -> bool {
+    let Some(ekf) = core.ekf.as_mut() else {
+        return false;
+    };
+    let m = idx.len();
+    let mut h = DMatrix::zeros(m, ekf.n());
+    let mut y = vec![0.0; m];
+    for (row, &i) in idx.iter().enumerate() {
+        h[(row, i)] = 1.0;
+        y[row] = z[row] - ekf.x[i];
+    }
+    let r = DMatrix::from_diagonal_element(m, m, var);
+    ekf.update(&dvec(&y), &h, &r, 0.0, true).accepted
+}
+
+fn fuse_height_force(core: &mut Core, h_meas: f64, var: f64) {
+    let Some(ekf) = core.ekf.as_mut() else { return };
+    let mut h = DMatrix::zeros(1, ekf.n());
+    h[(0, IDX_P + 2)] = 1.0;
+    h[(0, IDX_TERRAIN)] = -1.0;
+    let y = h_meas - (ekf.x[IDX_P + 2] - ekf.x[IDX_TERRAIN]);
+    let r = DMatrix::from_element(1, 1, var);
+    ekf.update(&dvec(&[y]), &h, &r, 0.0, true);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn still_imu(g: &mut GroundState, from: i64, to: i64) {
+        let mut t = from;
+        while t <= to {
+            imu_sample(
+                g,
+                t,
+                Some(Vector3::zeros()),
+                Some(Vector3::new(0.0, 0.0, GRAVITY)),
+            );
+            t += 5_000;
+        }
+    }
+
+    #[test]
+    fn range_at_minimum_and_still_imu_is_the_ground() {
+        let mut g = GroundState::default();
+        still_imu(&mut g, 0, 1_000_000);
+        assert!(!g.on_ground(1_000_000), "no evidence yet");
+        range_sample(&mut g, 1_000_000, 0.0, 0.2, true);
+        assert!(g.on_ground(1_000_000));
+        // The range finder sees the floor from above: up.
+        range_sample(&mut g, 1_100_000, 1.5, 0.2, false);
+        assert!(!g.on_ground(1_100_000));
+    }
+
+    #[test]
+    fn a_carried_vehicle_is_not_at_rest_whatever_the_autopilot_says() {
+        let mut g = GroundState::default();
+        process_state(&mut g, 0, Some(false), Some(LandedState::OnGround));
+        still_imu(&mut g, 0, 1_000_000);
+        assert!(g.on_ground(1_000_000));
+        // Walking: a 1 Hz sway of 1.5 m/s² on x.
+        let mut t = 1_000_000;
+        while t < 2_000_000 {
+            let a = 1.5 * (2.0 * std::f64::consts::PI * t as f64 * 1e-6).sin();
+            imu_sample(
+                &mut g,
+                t,
+                Some(Vector3::zeros()),
+                Some(Vector3::new(a, 0.0, GRAVITY)),
+            );
+            t += 5_000;
+        }
+        assert!(!g.on_ground(2_000_000));
+    }
+
+    #[test]
+    fn motor_vibration_averages_out() {
+        let mut g = GroundState::default();
+        // Standing, then the motors spin up (armed on the ground).
+        still_imu(&mut g, 0, 1_000_000);
+        let mut t = 1_005_000;
+        let mut sign = 1.0;
+        while t <= 2_500_000 {
+            // ±3 m/s² at 100 Hz on every axis, ±0.3 rad/s on the gyro.
+            sign = -sign;
+            imu_sample(
+                &mut g,
+                t,
+                Some(Vector3::repeat(0.3 * sign)),
+                Some(Vector3::new(3.0 * sign, 3.0 * sign, GRAVITY + 3.0 * sign)),
+            );
+            t += 5_000;
+        }
+        range_sample(&mut g, 2_500_000, 0.05, 0.3, true);
+        assert!(g.on_ground(2_500_000));
+    }
+
+    #[test]
+    fn the_land_detector_overrides_a_low_range() {
+        let mut g = GroundState::default();
+        still_imu(&mut g, 0, 1_000_000);
+        range_sample(&mut g, 1_000_000, 0.1, 0.3, true);
+        process_state(&mut g, 1_000_000, Some(true), Some(LandedState::InAir));
+        assert!(!g.on_ground(1_000_000));
+    }
+
+    fn process_state(g: &mut GroundState, t: i64, armed: Option<bool>, l: Option<LandedState>) {
+        if let Some(a) = armed {
+            g.armed = Some((t, a));
+        }
+        if let Some(l) = l {
+            g.landed = Some((t, l));
+        }
+    }
+}
