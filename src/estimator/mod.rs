@@ -149,6 +149,9 @@ pub struct EstimatorStatus {
     pub history_len: usize,
     pub late_dropped: u64,
     pub clock_offsets_us: BTreeMap<String, i64>,
+    /// Sources whose stamps do not run at the host's rate (measured rate), timed by
+    /// arrival instead (see `timing`).
+    pub timed_by_arrival: BTreeMap<String, f64>,
 }
 
 /// Read-only context of one processing step.
@@ -1342,6 +1345,12 @@ impl Estimator {
                 .clocks
                 .iter()
                 .filter_map(|(s, c)| c.offset_us().map(|o| (s.clone(), o)))
+                .collect(),
+            timed_by_arrival: self
+                .clocks
+                .iter()
+                .filter(|(_, c)| !c.stamps_usable())
+                .filter_map(|(s, c)| c.stamp_rate.map(|r| (s.clone(), r)))
                 .collect(),
         }
     }
