@@ -57,6 +57,9 @@ pub const DEFAULT_ATTITUDE_NOISE_RAD: f64 = 0.01;
 /// Acceleration noise of the constant-velocity model used while no IMU arrives, m/s².
 pub const DEFAULT_NO_IMU_ACCEL_NOISE: f64 = 3.0;
 pub const DEFAULT_IMU_TIMEOUT_MS: f64 = 100.0;
+/// Variance of the ground's height below a frame started without a height measurement,
+/// m² (σ 10 m: anything a range finder or ToF can then see).
+pub const UNKNOWN_TERRAIN_VAR: f64 = 100.0;
 /// On the ground with no horizontal aiding: 1σ of the held position, m, and of the
 /// zero velocity, m/s (see `estimator::ground`).
 pub const DEFAULT_GROUND_POS_NOISE: f64 = 0.3;

@@ -115,11 +115,21 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
         return;
     }
     if !core.initialised() {
-        let z = core.latest_height(t).unwrap_or(0.0);
+        let height = core.latest_height(t);
         let var = Vector3::repeat(cfg.init_pos_var);
         let v = b.vel_body.map(|vb| core.att.q * vb);
         let v_var = v.map(|_| cfg.vo_vel_noise.powi(2));
+        let z = height.unwrap_or(0.0);
         core.initialise(t, source, Vector3::new(0.0, 0.0, z), var, v, v_var, ctx);
+        if height.is_none() {
+            // Started with no height measurement (in flight, or the range finder's
+            // first sample still to come): where the ground is below this frame is not
+            // known, so the first range or ToF sets it instead of being gated out.
+            if let Some(ekf) = core.ekf.as_mut() {
+                let i = super::ekf::IDX_TERRAIN;
+                ekf.p[(i, i)] = super::config::UNKNOWN_TERRAIN_VAR;
+            }
+        }
     }
     // Control: does a new segment start?
     let mut st = core.odom.remove(source).unwrap_or_default();

@@ -145,6 +145,8 @@ pub struct InputStatus {
     pub format: Format,
     #[serde(rename = "type")]
     pub ros_type: Option<String>,
+    /// For `type = "auto"`: the type a bridge announces for the key, which is decoded.
+    pub resolved_type: Option<String>,
     pub enabled: bool,
     pub received: u64,
     pub accepted: u64,
@@ -273,6 +275,7 @@ impl InputState {
             } else {
                 self.config.ros_type.map(|t| t.ros2_name().to_string())
             },
+            resolved_type: None,
             enabled: self.config.enabled,
             received: c.received.load(Relaxed),
             accepted: c.accepted.load(Relaxed),
@@ -349,7 +352,16 @@ impl Ingest {
     }
 
     pub fn statuses(&self, now: Micros) -> Vec<InputStatus> {
-        self.inputs.iter().map(|i| i.status(now)).collect()
+        self.inputs
+            .iter()
+            .map(|i| {
+                let mut st = i.status(now);
+                if i.config.auto_type {
+                    st.resolved_type = self.announced_type(&i.config.key);
+                }
+                st
+            })
+            .collect()
     }
 
     /// Decode and validate one payload for `input`. Never panics, whatever the bytes;

@@ -558,24 +558,22 @@ pub async fn run(
                 stats.vpe_sent.fetch_add(1, Relaxed);
                 stats.last_sent_us.store(now.max(0) as u64, Relaxed);
                 stats.last_reset_counter.store(u64::from(reset), Relaxed);
-                if let Ok(mut r) = stats.rate.lock() {
-                    r.tick(now);
-                }
-                if let Ok(mut r) = stats.not_sending_reason.lock() {
-                    *r = None;
-                }
+                crate::sync::lock(&stats.rate).tick(now);
+                *crate::sync::lock(&stats.not_sending_reason) = None;
                 frames.extend(msgs);
             }
             Ok(None) => {}
             Err(why) => {
                 advance(&mut next_due);
                 stats.withheld.fetch_add(1, Relaxed);
-                if let Ok(mut r) = stats.not_sending_reason.lock() {
-                    if r.as_deref() != Some(why.as_str()) {
-                        tracing::warn!("MAVLink output: not sending: {why}");
-                    }
-                    *r = Some(why);
+                let mut r = crate::sync::lock(&stats.not_sending_reason);
+                // Logged when the kind of reason changes ("estimate stale", "estimate
+                // invalid", ...), not each time the age in its text grows.
+                let kind = |t: &str| t.split(':').next().unwrap_or(t).to_string();
+                if r.as_deref().map(kind) != Some(kind(&why)) {
+                    tracing::warn!("MAVLink output: not sending: {why}");
                 }
+                *r = Some(why);
             }
         }
         for msg in frames {
