@@ -186,8 +186,13 @@ fn extended_sys_state(f: &Fields) -> Result<Mapped, DecodeError> {
 
 // ------------------------------------------------------------------------ helpers
 
+/// A `time_usec`; 0 is "no time" (ArduPilot's GPS_RAW_INT before its first fix), so the
+/// sample is timed by its arrival rather than starting a clock at zero.
 fn usec(f: &Fields, key: &str) -> Result<Option<Micros>, DecodeError> {
     let t = f.uint(key, u64::MAX)?;
+    if t == 0 {
+        return Ok(None);
+    }
     Micros::try_from(t)
         .map(Some)
         .map_err(|_| DecodeError::OutOfRange {
