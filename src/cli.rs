@@ -765,9 +765,8 @@ fn replay(
     }
     let mut bar = Progress::new("reading  ");
     let mut on_progress = |done: u64, total: u64| bar.update(done as f64 / total.max(1) as f64);
-    let is_tlog = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("tlog"));
+    let name = path.to_string_lossy().to_ascii_lowercase();
+    let is_tlog = name.ends_with(".tlog") || name.ends_with(".tlog.gz");
     let samples = if is_tlog {
         let log =
             crate::replay::tlog::read_tlog(path, &mut on_progress).map_err(|e| e.to_string())?;

@@ -65,6 +65,8 @@ pub struct Recorder {
     pub events: Vec<String>,
     last_fused_us: Option<i64>,
     gnss_origin: Option<LocalEnu>,
+    /// ENU origins of geodetic estimates, per source.
+    geodetic_origins: BTreeMap<String, LocalEnu>,
     /// Newest flow `OF_sum` point taken per source.
     flow_taken: BTreeMap<String, i64>,
     /// Time origin, µs (t = 0 in the files).
@@ -123,11 +125,21 @@ impl Recorder {
                 }
             }
             SensorData::AutopilotEstimate(a) => {
-                if let Some(p) = a.local_position {
-                    let q = a
-                        .yaw
-                        .map(|y| UnitQuaternion::from_euler_angles(0.0, 0.0, y))
-                        .unwrap_or_else(UnitQuaternion::identity);
+                let q = a
+                    .yaw
+                    .map(|y| UnitQuaternion::from_euler_angles(0.0, 0.0, y))
+                    .unwrap_or_else(UnitQuaternion::identity);
+                // A local position as it is; a geodetic one (GLOBAL_POSITION_INT, a
+                // simulator's SIM_STATE) in ENU about its own first position.
+                let p = a.local_position.or_else(|| {
+                    let (lat, lon, alt) = a.geodetic?;
+                    let o = *self
+                        .geodetic_origins
+                        .entry(id.clone())
+                        .or_insert_with(|| LocalEnu::new(lat, lon, alt));
+                    Some(o.to_enu(lat, lon, alt))
+                });
+                if let Some(p) = p {
                     push(self.sources.entry(id).or_default(), t, p, q);
                 }
             }

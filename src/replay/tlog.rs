@@ -8,7 +8,8 @@
 //!
 //! Sources are named after the sensor kind (`imu`, `attitude`, `flow`, `range`, `gps`,
 //! `vehicle_state`, `autopilot`), the first message type of a kind taking the plain
-//! name and any other the kind plus the message name (`imu_scaled_imu2`); messages of
+//! name and any other the kind plus the message name (`imu_scaled_imu2`); a simulator's
+//! SIM_STATE (ArduPilot SITL's truth, never fused) is `sim_truth`; messages of
 //! our own component (197) are skipped, as live. Both `stamp_us` and `arrival_us` are
 //! the record's timestamp: one clock for everything offline, as for PX4 logs.
 //!
@@ -68,10 +69,18 @@ fn frame_len(buf: &[u8]) -> Option<usize> {
 
 /// Reads a telemetry log; `progress(done, total)` counts bytes.
 pub fn read_tlog(file: &Path, progress: &mut dyn FnMut(u64, u64)) -> Result<TlogLog, TlogError> {
-    let bytes = std::fs::read(file).map_err(|source| TlogError::Read {
+    let read_err = |source| TlogError::Read {
         file: file.to_path_buf(),
         source,
-    })?;
+    };
+    let mut bytes = std::fs::read(file).map_err(read_err)?;
+    // `.tlog.gz`: a compressed log (how a test or an archive keeps one).
+    if file.extension().is_some_and(|e| e == "gz") {
+        let mut plain = Vec::new();
+        std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(&bytes[..]), &mut plain)
+            .map_err(read_err)?;
+        bytes = plain;
+    }
     let parsed = parse(&bytes, progress);
     if parsed.frames == 0 {
         return Err(TlogError::NoFrames {
@@ -147,6 +156,10 @@ pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> TlogLog {
                         SensorKind::AutopilotEstimate => "autopilot",
                         SensorKind::VehicleState => "vehicle_state",
                     };
+                    // A simulator's truth is named for what it is.
+                    if name == "SIM_STATE" {
+                        return Arc::from("sim_truth");
+                    }
                     let owner = kinds_taken.entry(kind).or_insert_with(|| name.clone());
                     // Both state messages feed one vehicle state.
                     if *owner == name || kind == SensorKind::VehicleState {

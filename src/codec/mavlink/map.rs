@@ -42,10 +42,11 @@ pub(super) enum SensorMsg {
     Odometry,
     Heartbeat,
     ExtendedSysState,
+    SimState,
 }
 
 impl SensorMsg {
-    pub const ALL: [SensorMsg; 14] = [
+    pub const ALL: [SensorMsg; 15] = [
         SensorMsg::HighresImu,
         SensorMsg::ScaledImu,
         SensorMsg::RawImu,
@@ -60,6 +61,7 @@ impl SensorMsg {
         SensorMsg::Odometry,
         SensorMsg::Heartbeat,
         SensorMsg::ExtendedSysState,
+        SensorMsg::SimState,
     ];
 
     /// (name, id) from rust-mavlink's definitions, so no number is typed twice.
@@ -82,6 +84,7 @@ impl SensorMsg {
             SensorMsg::Odometry => m::<common::ODOMETRY_DATA>(),
             SensorMsg::Heartbeat => m::<common::HEARTBEAT_DATA>(),
             SensorMsg::ExtendedSysState => m::<common::EXTENDED_SYS_STATE_DATA>(),
+            SensorMsg::SimState => m::<common::SIM_STATE_DATA>(),
         }
     }
 
@@ -126,6 +129,7 @@ pub(super) fn decode(sensor: SensorMsg, f: &Fields) -> Result<Mapped, DecodeErro
         SensorMsg::Odometry => odometry(f),
         SensorMsg::Heartbeat => heartbeat(f),
         SensorMsg::ExtendedSysState => extended_sys_state(f),
+        SensorMsg::SimState => sim_state(f),
     }
 }
 
@@ -534,6 +538,48 @@ fn global_position_int(f: &Fields) -> Result<Mapped, DecodeError> {
             geodetic: Some((lat, lon, alt)),
             velocity: Some(frames::ned_to_enu(v_ned)),
             yaw,
+        }),
+    )))
+}
+
+/// SIM_STATE, a simulator's true state (ArduPilot SITL): kept beside the estimates for
+/// scoring, never fused. Position from `lat_int`/`lon_int` (1e-7°) where sent, else the
+/// lower-precision `lat`/`lon` (degrees); attitude from the quaternion (FRD → NED).
+fn sim_state(f: &Fields) -> Result<Mapped, DecodeError> {
+    let int = |k: &str| f.ext_int(k, i32::MIN.into(), i32::MAX.into());
+    let (lat, lon) = match (int("lat_int")?, int("lon_int")?) {
+        (Some(a), Some(o)) if a != 0 || o != 0 => (a as f64 * 1e-7, o as f64 * 1e-7),
+        _ => (f.f32("lat")?, f.f32("lon")?),
+    };
+    in_range(
+        &format!("{}.lat", f.name),
+        lat,
+        -90.0,
+        90.0,
+        "latitude beyond ±90°",
+    )?;
+    in_range(
+        &format!("{}.lon", f.name),
+        lon,
+        -180.0,
+        180.0,
+        "longitude beyond ±180°",
+    )?;
+    let alt = f.f32("alt")?;
+    let q = quat(
+        f,
+        "q",
+        [f.f32("q1")?, f.f32("q2")?, f.f32("q3")?, f.f32("q4")?],
+    )?;
+    let yaw = frames::q_ned_frd_to_enu_flu(q).euler_angles().2;
+    let v_ned = vec3_opt(f, ["vn", "ve", "vd"])?;
+    Ok(Some((
+        None,
+        SensorData::AutopilotEstimate(AutopilotEstimate {
+            local_position: None,
+            geodetic: Some((lat, lon, alt)),
+            velocity: v_ned.map(frames::ned_to_enu),
+            yaw: Some(yaw),
         }),
     )))
 }

@@ -26,6 +26,7 @@ import argparse
 import collections
 import glob
 import json
+import struct
 import math
 import os
 import resource
@@ -73,6 +74,31 @@ LANDED = {0: "undefined", 1: "on_ground", 2: "in_air", 3: "takeoff", 4: "landing
 
 class HarnessError(Exception):
     pass
+
+
+class Tlog:
+    """A telemetry log as QGroundControl/MAVProxy write it: per frame an 8-byte big-endian
+    Unix time in µs, then the frame. Fed with SERIAL0's frames as mavlink-server puts
+    them on mavlink_raw/out (what skyfuse's link sees) and SIM_STATE from SERIAL1."""
+
+    def __init__(self, path):
+        self.f = open(path, "wb")
+        self.lock = threading.Lock()
+        self.frames = 0
+
+    def write(self, frame):
+        with self.lock:
+            if self.f.closed:
+                return
+            self.f.write(struct.pack(">Q", int(time.time() * 1e6)) + bytes(frame))
+            self.frames += 1
+
+    def close(self):
+        with self.lock:
+            self.f.close()
+
+
+TLOG = None
 
 
 def log(*a):
@@ -145,6 +171,8 @@ class Control:
             self.counts["BAD_DATA"] += 1
             return
         sysid, comp = msg.get_srcSystem(), msg.get_srcComponent()
+        if TLOG is not None and typ == "SIM_STATE":
+            TLOG.write(msg.get_msgbuf())
         key = typ if comp == 1 else f"{typ}@{sysid}/{comp}"
         self.counts[key] += 1
         self.first.setdefault(key, t)
@@ -290,6 +318,9 @@ class ZenohWatch:
                      self.s.declare_subscriber(f"{p}/events", self._event),
                      self.s.declare_subscriber("mavlink/*/*/*", self._mav),
                      self.s.declare_subscriber("mavlink_raw/in", self._raw_in)]
+        if TLOG is not None:
+            self.subs.append(self.s.declare_subscriber(
+                "mavlink_raw/out", lambda smp: TLOG.write(smp.payload.to_bytes())))
 
     def _pose(self, sample):
         t = time.monotonic()
@@ -1070,11 +1101,16 @@ def main():
                     help="do not count VISP in the autopilot's dataflash log")
     ap.add_argument("--keep", action="store_true", help="keep the work directory")
     ap.add_argument("--tracks", default=None, help="write every track as CSV here")
+    ap.add_argument("--tlog", default=None,
+                    help="write a telemetry log (.tlog) of SERIAL0 as mavlink-server relays it, plus SIM_STATE")
     a = ap.parse_args()
     if a.link == "udpout":
         a.link = "udpin"
     if a.timeout is None:
         a.timeout = 60 + 260 / a.speedup
+    global TLOG
+    if a.tlog:
+        TLOG = Tlog(a.tlog)
     run = Run(a)
 
     def on_signal(signum, _frame):
@@ -1101,6 +1137,9 @@ def main():
         run.problem(f"harness: {e!r}\n{traceback.format_exc()}")
     finally:
         signal.alarm(0)
+        if TLOG is not None:
+            TLOG.close()
+            run.result["tlog_frames"] = TLOG.frames
         try:
             run.report()
         except Exception as e:  # noqa: BLE001
