@@ -58,6 +58,11 @@ fn missing() -> Option<String> {
 /// own ports: tests run two at a time, and two SITLs picking "a free instance" at the
 /// same moment can pick the same one); returns the result JSON.
 fn fly(scenario: &str, link: &str, instance: u32) -> Option<Value> {
+    fly_with(scenario, link, instance, None)
+}
+
+/// [`fly`] with another skyfuse config from `tests/data/sitl/`.
+fn fly_with(scenario: &str, link: &str, instance: u32, config: Option<&str>) -> Option<Value> {
     if let Some(why) = missing() {
         eprintln!("SKIPPED SITL {scenario}/{link}: {why}");
         return None;
@@ -72,6 +77,20 @@ fn fly(scenario: &str, link: &str, instance: u32) -> Option<Value> {
         .args(["--scenario", scenario, "--link", link, "--speedup", "1"])
         .arg("--fast-arm")
         .args(["--instance", &instance.to_string()])
+        .args(
+            config
+                .map(|c| {
+                    vec![
+                        "--config".to_string(),
+                        repo_root()
+                            .join("tests/data/sitl")
+                            .join(c)
+                            .display()
+                            .to_string(),
+                    ]
+                })
+                .unwrap_or_default(),
+        )
         .arg("--out")
         .arg(&out)
         .env("SKYFUSE_PEERS", peers_dir())
@@ -174,6 +193,15 @@ fn vpe_over_tcp_to_serial2() {
 #[test]
 fn vpe_over_udp() {
     if let Some(r) = fly("gps_flow", "udpin", 16) {
+        flew(&r);
+    }
+}
+
+#[test]
+fn gps_and_flow_from_mavlink_servers_raw_frames() {
+    // The same flight with every input from mavlink-server's zenohraw:// endpoint
+    // (mavlink_raw/out, raw frames) instead of its JSON.
+    if let Some(r) = fly_with("gps_flow", "zenoh_raw", 17, Some("skyfuse-gps-raw.toml")) {
         flew(&r);
     }
 }
