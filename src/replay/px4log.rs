@@ -978,7 +978,6 @@ enum Mapper {
     Range(RangeCols),
     Flow(FlowCols),
     Vio(Box<VioCols>),
-    Vio14(Box<Vio14Cols>),
     Ekf2(Ekf2Cols),
     Ekf2FlowGyro(Vec3Pair),
     LandDetected(FlagCol),
@@ -1010,22 +1009,6 @@ struct GpsCols {
     satellites: usize,
     hdop: usize,
     vdop: usize,
-}
-
-/// vehicle_visual_odometry from PX4 1.14 on: variances per axis, frames renumbered.
-struct Vio14Cols {
-    t: usize,
-    pos: [usize; 3],
-    q: [usize; 4],
-    vel: [usize; 3],
-    rates: [usize; 3],
-    pos_var: [usize; 3],
-    att_var: [usize; 3],
-    vel_var: [usize; 3],
-    pose_frame: usize,
-    velocity_frame: usize,
-    reset_counter: usize,
-    quality: usize,
 }
 
 struct AttitudeCols {
@@ -1065,15 +1048,32 @@ struct VioCols {
     t: usize,
     pos: [usize; 3],
     q: [usize; 4],
-    pose_cov: [usize; 21],
     vel: [usize; 3],
     rates: [usize; 3],
-    vel_cov: [usize; 21],
-    local_frame: usize,
+    /// `local_frame` (≤ 1.13) or `pose_frame` (≥ 1.14).
+    pose_frame: usize,
     velocity_frame: usize,
     reset_counter: usize,
     /// Added to vehicle_odometry after v1.13; absent in older logs.
     quality: Option<usize>,
+    cov: VioCov,
+    /// The frame constants: ≤ 1.13 earth-fixed NED 0 / FRD 1, ≥ 1.14 NED 1 / FRD 2;
+    /// body FRD is 3 in both.
+    earth_frames: [i64; 2],
+}
+
+/// How vehicle_visual_odometry carries its uncertainty (inside a boxed `VioCols`: one
+/// per topic, so the size difference of the variants costs nothing).
+#[allow(clippy::large_enum_variant)]
+enum VioCov {
+    /// ≤ 1.13: 6×6 upper triangles (pose, velocity).
+    Urt { pose: [usize; 21], vel: [usize; 21] },
+    /// ≥ 1.14: per-axis variances.
+    Var {
+        pos: [usize; 3],
+        att: [usize; 3],
+        vel: [usize; 3],
+    },
 }
 
 struct Ekf2Cols {
@@ -1188,28 +1188,34 @@ impl Mapper {
                 t,
                 pos: h.list(["x", "y", "z"])?,
                 q: h.arr("q")?,
-                pose_cov: h.arr("pose_covariance")?,
                 vel: h.list(["vx", "vy", "vz"])?,
                 rates: h.list(["rollspeed", "pitchspeed", "yawspeed"])?,
-                vel_cov: h.arr("velocity_covariance")?,
-                local_frame: h.get("local_frame")?,
+                pose_frame: h.get("local_frame")?,
                 velocity_frame: h.get("velocity_frame")?,
                 reset_counter: h.get("reset_counter")?,
                 quality: h.opt("quality"),
+                cov: VioCov::Urt {
+                    pose: h.arr("pose_covariance")?,
+                    vel: h.arr("velocity_covariance")?,
+                },
+                earth_frames: [LOCAL_FRAME_NED, LOCAL_FRAME_FRD],
             })),
-            Kind::Vio => Mapper::Vio14(Box::new(Vio14Cols {
+            Kind::Vio => Mapper::Vio(Box::new(VioCols {
                 t,
                 pos: h.arr("position")?,
                 q: h.arr("q")?,
                 vel: h.arr("velocity")?,
                 rates: h.arr("angular_velocity")?,
-                pos_var: h.arr("position_variance")?,
-                att_var: h.arr("orientation_variance")?,
-                vel_var: h.arr("velocity_variance")?,
                 pose_frame: h.get("pose_frame")?,
                 velocity_frame: h.get("velocity_frame")?,
                 reset_counter: h.get("reset_counter")?,
-                quality: h.get("quality")?,
+                quality: Some(h.get("quality")?),
+                cov: VioCov::Var {
+                    pos: h.arr("position_variance")?,
+                    att: h.arr("orientation_variance")?,
+                    vel: h.arr("velocity_variance")?,
+                },
+                earth_frames: [1, 2],
             })),
             Kind::Ekf2 => Mapper::Ekf2(Ekf2Cols {
                 t,
@@ -1256,7 +1262,6 @@ impl Mapper {
             Mapper::Range(c) => range(c, r),
             Mapper::Flow(c) => flow(c, r),
             Mapper::Vio(c) => vio(c, r),
-            Mapper::Vio14(c) => vio14(c, r),
             Mapper::Ekf2(c) => ekf2(c, r),
             Mapper::LandDetected(c) => {
                 let landed = r.int(c.flag, 0, 1, "0 or 1")? == 1;
@@ -1463,14 +1468,15 @@ fn flow(c: &FlowCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> 
     ))
 }
 
-/// vehicle_visual_odometry (v1.12/1.13 layout): pose in `local_frame` (NED, or FRD
-/// earth-fixed with an arbitrary heading, which converts the same way), body FRD;
-/// velocity in `velocity_frame`, turned into body FLU as nav_msgs/Odometry has it.
+/// vehicle_visual_odometry, both layouts: pose in an earth-fixed NED frame (or FRD with
+/// an arbitrary heading, which converts the same way), body FRD; velocity in
+/// `velocity_frame`, turned into body FLU as nav_msgs/Odometry has it; covariances as
+/// 6×6 upper triangles (≤ 1.13) or per-axis variances (≥ 1.14).
 fn vio(c: &VioCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
     let t = r.stamp(c.t)?;
-    let local_frame = r.int(c.local_frame, 0, 255, "a frame constant")?;
-    if local_frame != LOCAL_FRAME_NED && local_frame != LOCAL_FRAME_FRD {
-        return Err(r.unusable(c.local_frame, "pose frame is neither NED nor FRD"));
+    let pose_frame = r.int(c.pose_frame, 0, 255, "a frame constant")?;
+    if !c.earth_frames.contains(&pose_frame) {
+        return Err(r.unusable(c.pose_frame, "pose frame is neither NED nor FRD"));
     }
     let pos = r.vec3(c.pos)?;
     if !pos.iter().all(|v| v.is_finite()) {
@@ -1484,7 +1490,7 @@ fn vio(c: &VioCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
     let f = frd_to_flu_matrix();
     // The linear map from the message's velocity to body FLU, if its frame is known.
     let vel_map = match r.int(c.velocity_frame, 0, 255, "a frame constant")? {
-        LOCAL_FRAME_NED | LOCAL_FRAME_FRD => Some(q.to_rotation_matrix().matrix().transpose() * p),
+        v if c.earth_frames.contains(&v) => Some(q.to_rotation_matrix().matrix().transpose() * p),
         BODY_FRAME_FRD => Some(f),
         _ => None,
     };
@@ -1497,8 +1503,15 @@ fn vio(c: &VioCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
         .iter()
         .all(|v| v.is_finite())
         .then(|| frames::frd_to_flu(rates));
-    let pose_cov = r.urt6(&c.pose_cov)?.map(|cov| transform_cov6(cov, p, p));
-    let twist_cov = match (vel_map, r.urt6(&c.vel_cov)?) {
+    let (pose_cov, vel_cov) = match &c.cov {
+        VioCov::Urt { pose, vel } => (r.urt6(pose)?, r.urt6(vel)?),
+        VioCov::Var { pos, att, vel } => (
+            diag6(r.vec3(*pos)?, r.vec3(*att)?),
+            diag6(r.vec3(*vel)?, Vector3::zeros()),
+        ),
+    };
+    let pose_cov = pose_cov.map(|cov| transform_cov6(cov, p, p));
+    let twist_cov = match (vel_map, vel_cov) {
         (Some(m), Some(cov)) => Some(transform_cov6(cov, m, f)),
         _ => None,
     };
@@ -1525,40 +1538,13 @@ fn vio(c: &VioCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
     ))
 }
 
-/// vehicle_visual_odometry from PX4 1.14 on: `pose_frame` 1 NED / 2 FRD (earth-fixed),
-/// `velocity_frame` 1 NED / 2 FRD / 3 body FRD; per-axis variances.
-fn vio14(c: &Vio14Cols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
-    let t = r.stamp(c.t)?;
-    let pose_frame = r.int(c.pose_frame, 0, 255, "a frame constant")?;
-    if pose_frame != 1 && pose_frame != 2 {
-        return Err(r.unusable(c.pose_frame, "pose frame is neither NED nor FRD"));
-    }
-    let pos = r.vec3(c.pos)?;
-    if !pos.iter().all(|v| v.is_finite()) {
-        return Err(r.unusable(c.pos[0], "position not finite"));
-    }
-    let q_ned = r
-        .quat(c.q)?
-        .ok_or_else(|| r.unusable(c.q[0], "quaternion not finite or zero"))?;
-    let q = frames::q_ned_frd_to_enu_flu(q_ned);
-    let p = ned_to_enu_matrix();
-    let f = frd_to_flu_matrix();
-    let vel_map = match r.int(c.velocity_frame, 0, 255, "a frame constant")? {
-        1 | 2 => Some(q.to_rotation_matrix().matrix().transpose() * p),
-        3 => Some(f),
-        _ => None,
-    };
-    let vel = r.vec3(c.vel)?;
-    let velocity = vel_map
-        .filter(|_| vel.iter().all(|v| v.is_finite()))
-        .map(|m| m * vel);
-    let rates = r.vec3(c.rates)?;
-    let angular_velocity = rates
-        .iter()
-        .all(|v| v.is_finite())
-        .then(|| frames::frd_to_flu(rates));
-    let diag6 = |a: Vector3<f64>, b: Vector3<f64>| -> Option<Matrix6<f64>> {
-        (a.iter().chain(b.iter()).all(|v| v.is_finite() && *v >= 0.0)).then(|| {
+/// A 6×6 diagonal covariance from two per-axis variance triples; `None` unless all are
+/// finite and non-negative.
+fn diag6(a: Vector3<f64>, b: Vector3<f64>) -> Option<Matrix6<f64>> {
+    a.iter()
+        .chain(b.iter())
+        .all(|v| v.is_finite() && *v >= 0.0)
+        .then(|| {
             let mut m = Matrix6::zeros();
             for i in 0..3 {
                 m[(i, i)] = a[i];
@@ -1566,32 +1552,6 @@ fn vio14(c: &Vio14Cols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError
             }
             m
         })
-    };
-    let pose_cov = diag6(r.vec3(c.pos_var)?, r.vec3(c.att_var)?).map(|m| transform_cov6(m, p, p));
-    let twist_cov = match (vel_map, diag6(r.vec3(c.vel_var)?, Vector3::zeros())) {
-        (Some(m), Some(cov)) => Some(transform_cov6(cov, m, f)),
-        _ => None,
-    };
-    Ok((
-        t,
-        SensorData::Odometry(Odometry {
-            position: frames::ned_to_enu(pos),
-            orientation: q,
-            velocity,
-            angular_velocity,
-            pose_cov,
-            twist_cov,
-            frame_id: "px4_vio_odom".to_string(),
-            child_frame_id: "px4_vio_body".to_string(),
-            reset_counter: Some(r.u8(c.reset_counter)?),
-            quality: Some(r.int(
-                c.quality,
-                i8::MIN.into(),
-                i8::MAX.into(),
-                "an integer -128..=127",
-            )? as i8),
-        }),
-    ))
 }
 
 /// vehicle_local_position: position and velocity only where PX4 flags them valid (PX4's
@@ -2073,6 +2033,144 @@ mod tests {
             read_dir(&dir.0),
             Err(Px4LogError::NoHeader { .. })
         ));
+    }
+
+    #[test]
+    fn px4_1_14_and_1_15_layouts_read() {
+        // PX4 1.14/1.15 field names (vehicle_optical_flow, the renumbered
+        // vehicle_odometry frames with variances, sensor_gps in degrees), hand-built rows.
+        let dir = TempDir::new("v115");
+        dir.write(
+            "sensor_combined_0.csv",
+            "timestamp,gyro_rad[0],gyro_rad[1],gyro_rad[2],gyro_integral_dt,accelerometer_timestamp_relative,accelerometer_m_s2[0],accelerometer_m_s2[1],accelerometer_m_s2[2],accelerometer_integral_dt\n\
+             1000,0.1,0.2,0.3,4000,0,0.5,0.0,-9.8,4000\n",
+        );
+        dir.write(
+            "vehicle_attitude_0.csv",
+            "timestamp,timestamp_sample,q[0],q[1],q[2],q[3],delta_q_reset[0],delta_q_reset[1],delta_q_reset[2],delta_q_reset[3],quat_reset_counter\n\
+             2000,1990,1,0,0,0,1,0,0,0,0\n",
+        );
+        dir.write(
+            "vehicle_angular_velocity_0.csv",
+            "timestamp,timestamp_sample,xyz[0],xyz[1],xyz[2]\n2001,1995,0.0,0.0,0.5\n",
+        );
+        dir.write(
+            "sensor_gps_0.csv",
+            "timestamp,latitude_deg,longitude_deg,altitude_msl_m,fix_type,eph,epv,vel_n_m_s,vel_e_m_s,vel_d_m_s,vel_ned_valid,satellites_used,hdop,vdop\n\
+             3000,47.3977419,8.5455938,488.1,3,0.8,1.2,1.0,2.0,0.5,1,14,0.7,1.1\n",
+        );
+        dir.write(
+            "vehicle_optical_flow_0.csv",
+            "timestamp,timestamp_sample,device_id,pixel_flow[0],pixel_flow[1],delta_angle[0],delta_angle[1],delta_angle[2],distance_m,integration_timespan_us,quality,max_flow_rate,min_ground_distance,max_ground_distance\n\
+             4000,3990,1,0.002,0.004,0.001,0.002,0.0,1.5,20000,150,8,0.1,5\n",
+        );
+        dir.write(
+            "vehicle_visual_odometry_0.csv",
+            "timestamp,timestamp_sample,pose_frame,position[0],position[1],position[2],q[0],q[1],q[2],q[3],velocity_frame,velocity[0],velocity[1],velocity[2],angular_velocity[0],angular_velocity[1],angular_velocity[2],position_variance[0],position_variance[1],position_variance[2],orientation_variance[0],orientation_variance[1],orientation_variance[2],velocity_variance[0],velocity_variance[1],velocity_variance[2],reset_counter,quality\n\
+             5000,4990,1,1.0,2.0,-3.0,1,0,0,0,1,0.5,0,0,nan,nan,nan,0.01,0.02,0.03,0.001,0.001,0.002,0.1,0.1,0.2,4,90\n",
+        );
+        let log = read_dir(&dir.0).unwrap_or_else(|e| panic!("{e}"));
+        assert!(log.stand_ins.is_empty(), "{:?}", log.stand_ins);
+        let get = |src: &str| {
+            log.samples
+                .iter()
+                .find(|s| s.source.as_ref() == src)
+                .map(|s| s.data.clone())
+                .unwrap_or_else(|| panic!("no {src}"))
+        };
+        let SensorData::Imu(i) = get("imu") else {
+            panic!("imu")
+        };
+        assert_eq!(i.gyro, Some(Vector3::new(0.1, -0.2, -0.3)));
+        assert_eq!(i.accel, Some(Vector3::new(0.5, 0.0, 9.8)));
+        // The attitude got its rates (FRD yaw rate 0.5 → FLU −0.5).
+        let SensorData::Attitude(a) = get("attitude") else {
+            panic!("attitude")
+        };
+        assert_eq!(a.rates, Some(Vector3::new(0.0, 0.0, -0.5)));
+        assert!(!log
+            .samples
+            .iter()
+            .any(|s| s.source.as_ref() == "angular_velocity"));
+        let SensorData::Gnss(g) = get("gps") else {
+            panic!("gps")
+        };
+        assert!(close(g.lat_deg, 47.3977419, 1e-9) && close(g.alt_m, 488.1, 1e-9));
+        assert_eq!(g.fix, GnssFixType::Fix3d);
+        assert_eq!(g.velocity, Some(Vector3::new(2.0, 1.0, -0.5)));
+        assert_eq!(g.satellites, Some(14));
+        let SensorData::Flow(f) = get("flow") else {
+            panic!("flow")
+        };
+        let r = f.rate.unwrap_or_else(|| panic!("rate"));
+        assert!(close(r.x, 0.1, 1e-12) && close(r.y, -0.2, 1e-12), "{r}");
+        assert_eq!(f.tof.map(|t| t.distance_m), Some(1.5));
+        let SensorData::Odometry(o) = get("vio") else {
+            panic!("vio")
+        };
+        assert_eq!(o.position, Vector3::new(2.0, 1.0, 3.0));
+        let cov = o.pose_cov.unwrap_or_else(|| panic!("pose cov"));
+        // NED variances (0.01, 0.02, 0.03) → ENU (0.02, 0.01, 0.03).
+        assert!(close(cov[(0, 0)], 0.02, 1e-12) && close(cov[(1, 1)], 0.01, 1e-12));
+        // Facing north, 0.5 m/s north in NED → 0.5 m/s forward in the body.
+        let v = o.velocity.unwrap_or_else(|| panic!("velocity"));
+        assert!((v - Vector3::new(0.5, 0.0, 0.0)).norm() < 1e-12, "{v}");
+        assert_eq!((o.reset_counter, o.quality), (Some(4), Some(90)));
+        assert!(o.angular_velocity.is_none());
+        assert_eq!(log.missing.len(), 2, "{:?}", log.missing); // range finder, land detector
+    }
+
+    #[test]
+    fn the_real_ulog_reads_directly() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg");
+        let log = read_ulog_with_progress(&path, &mut |_, _| {}).unwrap_or_else(|e| panic!("{e}"));
+        let count = |src: &str| {
+            log.samples
+                .iter()
+                .filter(|s| s.source.as_ref() == src)
+                .count()
+        };
+        // sensor_combined at ~194 Hz for 9 s, GPS at 2 Hz, EKF2 at 10 Hz.
+        assert_eq!(count("imu"), 1737);
+        assert!(
+            count("gps") >= 10 && count("ekf2") > 80,
+            "{} {}",
+            count("gps"),
+            count("ekf2")
+        );
+        assert!(count("attitude") > 100);
+        assert!(log.stand_ins.is_empty(), "{:?}", log.stand_ins);
+        let SensorData::Imu(i) = &log
+            .samples
+            .iter()
+            .find(|s| s.source.as_ref() == "imu")
+            .map(|s| &s.data)
+            .unwrap_or_else(|| panic!("imu"))
+        else {
+            panic!("imu")
+        };
+        let a = i.accel.unwrap_or_else(|| panic!("accel"));
+        assert!(close(a.norm(), 9.8, 0.3), "{a}");
+        let SensorData::Gnss(g) = &log
+            .samples
+            .iter()
+            .find(|s| s.source.as_ref() == "gps")
+            .map(|s| &s.data)
+            .unwrap_or_else(|| panic!("gps"))
+        else {
+            panic!("gps")
+        };
+        assert!(
+            g.lat_deg.abs() > 1.0 && g.lat_deg.abs() <= 90.0,
+            "{}",
+            g.lat_deg
+        );
+        // A truncated or foreign file is an error that names it, never a panic.
+        let dir = TempDir::new("badulog");
+        dir.write("x.ulg", "ULog\u{1}\u{12}5 not really a log");
+        let e = read_ulog_with_progress(&dir.0.join("x.ulg"), &mut |_, _| {});
+        assert!(e.is_err());
     }
 
     #[test]
