@@ -13,14 +13,7 @@
 
 mod common;
 use common::*;
-use std::path::PathBuf;
 use std::process::Command;
-
-fn peers_dir() -> PathBuf {
-    std::env::var_os("SKYFUSE_PEERS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| repo_root().join("../shared/peers"))
-}
 
 /// Why the test cannot run here, if it cannot.
 fn missing() -> Option<String> {

@@ -17,14 +17,7 @@
 mod common;
 use common::*;
 use serde_json::Value;
-use std::path::PathBuf;
 use std::process::Command;
-
-fn peers_dir() -> PathBuf {
-    std::env::var_os("SKYFUSE_PEERS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| repo_root().join("../shared/peers"))
-}
 
 /// Why the flights cannot run here, if they cannot.
 fn missing() -> Option<String> {

@@ -20,6 +20,14 @@ pub fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The real third-party programs (ArduCopter SITL, mavlink-server,
+/// zenoh-bridge-ros2dds): $SKYFUSE_PEERS, default ../shared/peers beside the project.
+pub fn peers_dir() -> PathBuf {
+    std::env::var_os("SKYFUSE_PEERS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo_root().join("../shared/peers"))
+}
+
 /// The Python with the test peers installed: $SKYFUSE_PYTHON, else the venv that
 /// `tests/run` makes, else python3.
 pub fn python() -> PathBuf {

@@ -259,6 +259,11 @@ fn i16_of(f: &Fields, key: &str) -> Result<f64, DecodeError> {
 fn lat_lon(f: &Fields) -> Result<(f64, f64), DecodeError> {
     let lat = int_of(f, "lat", i32::MIN.into(), i32::MAX.into())? * 1e-7;
     let lon = int_of(f, "lon", i32::MIN.into(), i32::MAX.into())? * 1e-7;
+    on_earth(f, lat, lon)
+}
+
+/// Latitude and longitude (degrees) within their ranges, or an error naming the field.
+fn on_earth(f: &Fields, lat: f64, lon: f64) -> Result<(f64, f64), DecodeError> {
     in_range(
         &format!("{}.lat", f.name),
         lat,
@@ -551,20 +556,7 @@ fn sim_state(f: &Fields) -> Result<Mapped, DecodeError> {
         (Some(a), Some(o)) if a != 0 || o != 0 => (a as f64 * 1e-7, o as f64 * 1e-7),
         _ => (f.f32("lat")?, f.f32("lon")?),
     };
-    in_range(
-        &format!("{}.lat", f.name),
-        lat,
-        -90.0,
-        90.0,
-        "latitude beyond ±90°",
-    )?;
-    in_range(
-        &format!("{}.lon", f.name),
-        lon,
-        -180.0,
-        180.0,
-        "longitude beyond ±180°",
-    )?;
+    let (lat, lon) = on_earth(f, lat, lon)?;
     let alt = f.f32("alt")?;
     let q = quat(
         f,
