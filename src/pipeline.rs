@@ -59,11 +59,11 @@ impl PipelineShared {
     }
 
     pub fn status_json(&self) -> Value {
-        self.status.lock().map(|s| s.clone()).unwrap_or(Value::Null)
+        crate::sync::lock(&self.status).clone()
     }
 
     pub fn health_json(&self) -> Value {
-        self.health.lock().map(|s| s.clone()).unwrap_or(Value::Null)
+        crate::sync::lock(&self.health).clone()
     }
 }
 
@@ -305,12 +305,8 @@ fn refresh_status(shared: &PipelineShared, fusion: &Fusion) {
     let st = fusion.est.state_summary();
     let h = health_json(fusion, &st, crate::ingest::now_us());
     let v = serde_json::to_value(st).unwrap_or(Value::Null);
-    if let Ok(mut s) = shared.status.lock() {
-        *s = v;
-    }
-    if let Ok(mut s) = shared.health.lock() {
-        *s = h;
-    }
+    *crate::sync::lock(&shared.status) = v;
+    *crate::sync::lock(&shared.health) = h;
 }
 
 /// Count, log and send events to the outputs and the websocket hub.

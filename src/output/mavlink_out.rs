@@ -100,12 +100,11 @@ impl LinkStats {
     fn error(&self, e: impl std::fmt::Display) {
         self.errors.fetch_add(1, Relaxed);
         let msg = e.to_string();
-        if let Ok(mut l) = self.last_error.lock() {
-            if l.as_deref() != Some(msg.as_str()) {
-                tracing::warn!("MAVLink output: {msg}");
-            }
-            *l = Some(msg);
+        let mut l = crate::sync::lock(&self.last_error);
+        if l.as_deref() != Some(msg.as_str()) {
+            tracing::warn!("MAVLink output: {msg}");
         }
+        *l = Some(msg);
     }
 }
 
@@ -139,7 +138,7 @@ pub struct LinkStatus {
 impl MavlinkStats {
     pub fn status_json(&self, now: i64, rate_hz: f64) -> serde_json::Value {
         let last = self.last_sent_us.load(Relaxed) as i64;
-        let reason = self.not_sending_reason.lock().ok().and_then(|r| r.clone());
+        let reason = crate::sync::lock(&self.not_sending_reason).clone();
         let links: Vec<LinkStatus> = self
             .links
             .iter()
@@ -149,7 +148,7 @@ impl MavlinkStats {
                 dropped: l.dropped.load(Relaxed),
                 errors: l.errors.load(Relaxed),
                 connected: l.connected.load(Relaxed),
-                last_error: l.last_error.lock().ok().and_then(|e| e.clone()),
+                last_error: crate::sync::lock(&l.last_error).clone(),
             })
             .collect();
         let sum = |f: fn(&LinkStatus) -> u64| links.iter().map(f).sum::<u64>();
@@ -158,7 +157,7 @@ impl MavlinkStats {
             "kind": "mavlink",
             "endpoint": self.links.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", "),
             "configured_rate_hz": rate_hz,
-            "rate_hz": self.rate.lock().map(|r| r.rate_hz()).unwrap_or(0.0),
+            "rate_hz": crate::sync::lock(&self.rate).rate_hz(),
             "sent": self.vpe_sent.load(Relaxed),
             "heartbeats": self.heartbeats.load(Relaxed),
             "origin_sent": self.origin_sent.load(Relaxed),

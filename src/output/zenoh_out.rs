@@ -41,12 +41,11 @@ pub struct ZenohOutStats {
 impl ZenohOutStats {
     fn error(&self, e: String) {
         self.errors.fetch_add(1, Relaxed);
-        if let Ok(mut l) = self.last_error.lock() {
-            if l.as_deref() != Some(e.as_str()) {
-                tracing::warn!("Zenoh output: {e}");
-            }
-            *l = Some(e);
+        let mut l = crate::sync::lock(&self.last_error);
+        if l.as_deref() != Some(e.as_str()) {
+            tracing::warn!("Zenoh output: {e}");
         }
+        *l = Some(e);
     }
 
     pub fn status_json(&self, cfg: &OutputConfig, prefix: &str) -> Value {
@@ -60,7 +59,7 @@ impl ZenohOutStats {
             "health": self.health.load(Relaxed),
             "errors": self.errors.load(Relaxed),
             "dropped": 0,
-            "last_error": self.last_error.lock().ok().and_then(|e| e.clone()),
+            "last_error": crate::sync::lock(&self.last_error).clone(),
             "sending": true,
             "not_sending_reason": null,
         })
