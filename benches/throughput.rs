@@ -151,7 +151,7 @@ fn decode_bench() {
 fn inputs_of(streams: &[skyfuse::sim::sensors::StreamSpec]) -> skyfuse::fusion::InputList {
     streams
         .iter()
-        .map(|s| (s.input_id.to_string(), s.kind, s.rate_hz, true))
+        .map(|s| skyfuse::fusion::InputSpec::new(s.input_id, s.kind, s.rate_hz))
         .collect()
 }
 
@@ -240,9 +240,9 @@ fn replay_bench() {
             cfg.sources.entry(id.into()).or_default().fuse = false;
         }
         let inputs: skyfuse::fusion::InputList = vec![
-            ("flow".into(), SensorKind::Flow, 60.0, true),
-            ("range".into(), SensorKind::Range, 50.0, true),
-            ("attitude".into(), SensorKind::Attitude, 10.0, true),
+            skyfuse::fusion::InputSpec::new("flow", SensorKind::Flow, 60.0),
+            skyfuse::fusion::InputSpec::new("range", SensorKind::Range, 50.0),
+            skyfuse::fusion::InputSpec::new("attitude", SensorKind::Attitude, 10.0),
         ];
         let mut f = Fusion::new(cfg, HealthConfig::default(), &inputs);
         let t0 = Instant::now();

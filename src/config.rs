@@ -209,6 +209,10 @@ impl Default for MavlinkConfig {
     }
 }
 
+/// QoS part of the ROS 2 liveliness tokens skyfuse declares: keyless, reliable,
+/// volatile, keep-last 10 (zenoh-bridge-ros2dds's encoding).
+pub const DEFAULT_QOS: &str = ":1::0,10";
+
 /// The `[output]` table: what goes to Zenoh.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
@@ -257,7 +261,7 @@ impl Default for OutputConfig {
             ros2_frame_id: DEFAULT_ROS_FRAME_ID.into(),
             pose_rate_hz: DEFAULT_POSE_RATE_HZ,
             ros2_announce: true,
-            ros2_qos: crate::ros_graph::DEFAULT_QOS.into(),
+            ros2_qos: DEFAULT_QOS.into(),
             ros_distro: "humble".into(),
         }
     }
@@ -271,7 +275,7 @@ impl OutputConfig {
         }
         let mut v = vec![(self.ros2_pose_key.clone(), "geometry_msgs/msg/PoseStamped")];
         if self.ros2_debug {
-            for t in crate::output::zenoh_out::DEBUG_TOPICS {
+            for t in crate::estimator::DEBUG_TOPICS {
                 v.push((
                     format!("{}/{t}", self.ros2_debug_prefix),
                     "geometry_msgs/msg/PointStamped",
@@ -478,8 +482,7 @@ impl Config {
             .map_err(|e| format!("estimator: {e}"))?;
         self.health.validate()?;
         for e in &self.mavlink.endpoints {
-            crate::output::mavlink_out::Endpoint::parse(e)
-                .map_err(|m| format!("mavlink.endpoints: {m}"))?;
+            Endpoint::parse(e).map_err(|m| format!("mavlink.endpoints: {m}"))?;
         }
         if !(self.mavlink.rate_hz.is_finite()
             && self.mavlink.rate_hz >= 1.0
@@ -601,9 +604,100 @@ fn parse_env_value(raw: &str) -> toml::Value {
     }
 }
 
+/// Where MAVLink goes, parsed from the address strings users know from MAVProxy and
+/// mavlink-router.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Endpoint {
+    /// Send to HOST:PORT (the autopilot or a router listens there).
+    UdpOut(String),
+    /// Listen on ADDR:PORT; send to whoever last sent us a datagram.
+    UdpIn(String),
+    /// Connect to HOST:PORT (SITL's TCP port, mavlink-router's TCP server).
+    TcpOut(String),
+    /// A serial device at a baud rate.
+    Serial { path: String, baud: u32 },
+}
+
+impl Endpoint {
+    pub fn parse(s: &str) -> Result<Endpoint, String> {
+        let (scheme, rest) = s.split_once(':').ok_or_else(|| {
+            format!("MAVLink endpoint {s:?}: expected udpout:HOST:PORT, udpin:HOST:PORT, tcpout:HOST:PORT or serial:PATH:BAUD")
+        })?;
+        let host_port = |rest: &str| -> Result<String, String> {
+            let (host, port) = rest
+                .rsplit_once(':')
+                .ok_or_else(|| format!("MAVLink endpoint {s:?}: missing :PORT"))?;
+            if host.is_empty() {
+                return Err(format!("MAVLink endpoint {s:?}: missing host"));
+            }
+            port.parse::<u16>().map_err(|_| {
+                format!("MAVLink endpoint {s:?}: port {port:?} is not a number 0-65535")
+            })?;
+            Ok(rest.to_string())
+        };
+        match scheme {
+            "udpout" | "udp" => Ok(Endpoint::UdpOut(host_port(rest)?)),
+            "udpin" => Ok(Endpoint::UdpIn(host_port(rest)?)),
+            "tcpout" | "tcp" => Ok(Endpoint::TcpOut(host_port(rest)?)),
+            "serial" => {
+                let (path, baud) = rest
+                    .rsplit_once(':')
+                    .ok_or_else(|| format!("MAVLink endpoint {s:?}: expected serial:PATH:BAUD"))?;
+                let baud = baud.parse::<u32>().map_err(|_| {
+                    format!("MAVLink endpoint {s:?}: baud {baud:?} is not a number")
+                })?;
+                if path.is_empty() {
+                    return Err(format!("MAVLink endpoint {s:?}: missing device path"));
+                }
+                Ok(Endpoint::Serial {
+                    path: path.to_string(),
+                    baud,
+                })
+            }
+            other => Err(format!(
+                "MAVLink endpoint {s:?}: unknown scheme {other:?} (udpout, udpin, tcpout, serial)"
+            )),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn endpoint_strings() {
+        assert_eq!(
+            Endpoint::parse("udpout:127.0.0.1:14540"),
+            Ok(Endpoint::UdpOut("127.0.0.1:14540".into()))
+        );
+        assert_eq!(
+            Endpoint::parse("udpin:0.0.0.0:14550"),
+            Ok(Endpoint::UdpIn("0.0.0.0:14550".into()))
+        );
+        assert_eq!(
+            Endpoint::parse("tcpout:px4.local:5760"),
+            Ok(Endpoint::TcpOut("px4.local:5760".into()))
+        );
+        assert_eq!(
+            Endpoint::parse("serial:/dev/ttyACM0:921600"),
+            Ok(Endpoint::Serial {
+                path: "/dev/ttyACM0".into(),
+                baud: 921_600
+            })
+        );
+        for bad in [
+            "udpout:1.2.3.4",
+            "udpout::14540",
+            "udpout:host:99999",
+            "ftp:host:1",
+            "serial:/dev/ttyS0:fast",
+            "nothing",
+        ] {
+            let e = Endpoint::parse(bad).expect_err(bad);
+            assert!(e.contains(bad), "{e}");
+        }
+    }
 
     fn env(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
         pairs

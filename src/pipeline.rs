@@ -8,7 +8,7 @@ use crate::estimator::{
 };
 use crate::fusion::{Fusion, InputList};
 use crate::health::HealthConfig;
-use crate::http::hub::{FrameKind, Hub};
+use crate::hub::{FrameKind, Hub};
 use crate::ingest::Ingest;
 use crate::sample::{Micros, Sample};
 use serde_json::{json, Value};
@@ -238,7 +238,7 @@ pub async fn run(
                 }
             }
             _ = health_timer.tick() => {
-                let now = crate::ingest::now_us();
+                let now = crate::clock::now_us();
                 // Rejections at ingest count against the sensor's health too.
                 for st in ingest.statuses(now) {
                     let seen = rejected_seen.entry(st.id.clone()).or_insert(0);
@@ -267,7 +267,7 @@ pub async fn run(
                 refresh_status(&shared, &fusion);
             }
             Some((cmd, reply)) = commands.recv() => {
-                let now = fusion.est.state_time().unwrap_or_else(crate::ingest::now_us);
+                let now = fusion.est.state_time().unwrap_or_else(crate::clock::now_us);
                 let events = match cmd {
                     Command::ResetOrigin => fusion.est.reset_origin(now),
                     Command::StartFlowCalibration => fusion.est.start_flow_calibration(now),
@@ -303,7 +303,7 @@ pub fn health_json(fusion: &Fusion, st: &EstimatorStatus, now: i64) -> Value {
 
 fn refresh_status(shared: &PipelineShared, fusion: &Fusion) {
     let st = fusion.est.state_summary();
-    let h = health_json(fusion, &st, crate::ingest::now_us());
+    let h = health_json(fusion, &st, crate::clock::now_us());
     let v = serde_json::to_value(st).unwrap_or(Value::Null);
     *crate::sync::lock(&shared.status) = v;
     *crate::sync::lock(&shared.health) = h;

@@ -12,8 +12,7 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
-/// The bridge's own QoS form: keyless, reliable, keep-last 10.
-pub const DEFAULT_QOS: &str = ":1::0,10";
+pub use crate::config::DEFAULT_QOS;
 /// Key expression matching every bridge publisher token.
 pub const PUBLISHER_TOKENS: &str = "@/*/@ros2_lv/MP/**";
 
@@ -234,10 +233,10 @@ pub async fn discover(
                     qos: tok.qos.clone(),
                     zid: tok.zid.clone(),
                     alive,
-                    since_us: crate::ingest::now_us(),
+                    since_us: crate::clock::now_us(),
                 });
             if e.alive != alive || e.ros_type != tok.ros_type {
-                e.since_us = crate::ingest::now_us();
+                e.since_us = crate::clock::now_us();
             }
             e.alive = alive;
             e.ros_type = tok.ros_type;

@@ -195,6 +195,9 @@ fn all_healthy(s: &Value) -> bool {
 
 #[test]
 fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_stops_cleanly() {
+    if skip_requested("containers", "the compose deployment") {
+        return;
+    }
     for tool in ["podman", "podman-compose"] {
         assert!(
             Command::new(tool).arg("--version").output().is_ok(),

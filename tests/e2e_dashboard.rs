@@ -12,6 +12,9 @@ fn json(text: &str) -> serde_json::Value {
 
 #[test]
 fn the_page_draws_live_data_and_an_injected_fault_reaches_the_log_and_its_tile() {
+    if skip_requested("browser", "the dashboard in Chromium") {
+        return;
+    }
     let svc = Service::start(&["demo", "--no-browser"], &[]);
     // The README shows docs/dashboard.png: written only when asked
     // (SKYFUSE_SCREENSHOT=1), so a test run never rewrites a tracked file.

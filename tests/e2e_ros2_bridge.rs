@@ -49,6 +49,9 @@ fn missing() -> Option<String> {
 
 #[test]
 fn ros2_node_through_the_real_bridge_both_ways() {
+    if skip_requested("peers", "ros2_node_through_the_real_bridge_both_ways") {
+        return;
+    }
     if let Some(why) = missing() {
         eprintln!("SKIPPED ros2_node_through_the_real_bridge_both_ways: {why}");
         return;

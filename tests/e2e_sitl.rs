@@ -56,6 +56,9 @@ fn fly(scenario: &str, link: &str, instance: u32) -> Option<Value> {
 
 /// [`fly`] with another skyfuse config from `tests/data/sitl/`.
 fn fly_with(scenario: &str, link: &str, instance: u32, config: Option<&str>) -> Option<Value> {
+    if skip_requested("peers", &format!("SITL {scenario}/{link}")) {
+        return None;
+    }
     if let Some(why) = missing() {
         eprintln!("SKIPPED SITL {scenario}/{link}: {why}");
         return None;

@@ -5,7 +5,7 @@
 //! back after it recovers. Nominal flights of 30 simulated minutes raise no fault.
 
 use skyfuse::estimator::EstimatorConfig;
-use skyfuse::fusion::{Fusion, InputList};
+use skyfuse::fusion::{Fusion, InputList, InputSpec};
 use skyfuse::health::HealthConfig;
 use skyfuse::sample::Sample;
 use skyfuse::sim::faults::FaultSchedule;
@@ -52,7 +52,7 @@ fn fly(scn: &Scenario, duration_s: f64) -> Run {
     let inputs: InputList = scn
         .streams
         .iter()
-        .map(|s| (s.input_id.to_string(), s.kind, s.rate_hz, true))
+        .map(|s| InputSpec::new(s.input_id, s.kind, s.rate_hz))
         .collect();
     let sensors = scn.streams.iter().map(|s| s.input_id.to_string()).collect();
     let faults = Arc::new(FaultSchedule::new(sensors, scn.faults.clone()));

@@ -2,9 +2,6 @@
 //! controls, and the page. Handlers only read shared state or send a command; nothing
 //! here blocks the data path.
 
-pub mod hub;
-
-use crate::app::AppState;
 use crate::pipeline::Command;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
@@ -18,6 +15,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 mod assets;
+mod state;
+
+pub use state::AppState;
 
 pub fn router(state: Arc<AppState>) -> Router {
     Router::new()

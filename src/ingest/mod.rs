@@ -8,20 +8,13 @@
 pub mod stamps;
 pub mod zenoh_in;
 
+use crate::clock::{now_us, RateMeter};
 use crate::codec::{self, Format, RosType};
 use crate::config::{Config, InputConfig, ERROR_LOG_INTERVAL_MS};
 use crate::sample::{Decoded, Micros, Sample};
 use serde::Serialize;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
-
-/// Host clock, µs since the Unix epoch. The only clock read on the ingest path.
-pub fn now_us() -> Micros {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_micros() as Micros)
-        .unwrap_or(0)
-}
 
 /// Why one payload was not turned into samples.
 #[derive(Debug, Clone, PartialEq)]
@@ -98,33 +91,6 @@ struct InputHistory {
     rate: RateMeter,
     last_log_us: Option<Micros>,
     suppressed_logs: u64,
-}
-
-/// Messages per second over one-second windows.
-#[derive(Debug, Default, Clone)]
-pub struct RateMeter {
-    window_start_us: Option<Micros>,
-    count: u64,
-    rate_hz: f64,
-}
-
-const RATE_WINDOW_US: Micros = 1_000_000;
-
-impl RateMeter {
-    pub fn rate_hz(&self) -> f64 {
-        self.rate_hz
-    }
-
-    pub fn tick(&mut self, now: Micros) {
-        let start = *self.window_start_us.get_or_insert(now);
-        self.count += 1;
-        let elapsed = now - start;
-        if elapsed >= RATE_WINDOW_US {
-            self.rate_hz = self.count as f64 * 1e6 / elapsed as f64;
-            self.window_start_us = Some(now);
-            self.count = 0;
-        }
-    }
 }
 
 /// One configured input and its state.
@@ -214,7 +180,7 @@ impl InputState {
         let last_error_age_ms = h.last_error_us.map(|t| (now - t) as f64 / 1000.0);
         let stale_after = self.config.stale_after_ms();
         let rate_hz = match age_ms {
-            Some(a) if a <= stale_after => h.rate.rate_hz,
+            Some(a) if a <= stale_after => h.rate.rate_hz(),
             _ => 0.0,
         };
         let mut reasons = Vec::new();
@@ -229,7 +195,7 @@ impl InputState {
                 HealthState::Stale
             } else {
                 // The meter needs a full window before its rate means anything.
-                if h.rate.rate_hz > 0.0 && rate_hz < LOW_RATE_FRACTION * self.config.rate_hz {
+                if h.rate.rate_hz() > 0.0 && rate_hz < LOW_RATE_FRACTION * self.config.rate_hz {
                     reasons.push(Reason {
                         code: "low_rate",
                         text: format!(

@@ -7,8 +7,9 @@
 //! others, and nothing here can block the estimator (which only writes a `watch`).
 
 use super::vpe::{self, MessageSet, VpeError};
+use crate::clock::{now_us, RateMeter};
+use crate::config::Endpoint;
 use crate::config::MavlinkConfig;
-use crate::ingest::{now_us, RateMeter};
 use crate::pipeline::PoseReceiver;
 use mavlink::MavHeader;
 use serde::Serialize;
@@ -28,63 +29,6 @@ const HEARTBEAT_INTERVAL_US: i64 = 1_000_000;
 const CHECK_INTERVAL: Duration = Duration::from_millis(20);
 /// A pose this early for the schedule still goes (poses come every few ms).
 const SEND_SLACK_US: i64 = 2_000;
-
-/// Where MAVLink goes, parsed from the address strings users know from MAVProxy and
-/// mavlink-router.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Endpoint {
-    /// Send to HOST:PORT (the autopilot or a router listens there).
-    UdpOut(String),
-    /// Listen on ADDR:PORT; send to whoever last sent us a datagram.
-    UdpIn(String),
-    /// Connect to HOST:PORT (SITL's TCP port, mavlink-router's TCP server).
-    TcpOut(String),
-    /// A serial device at a baud rate.
-    Serial { path: String, baud: u32 },
-}
-
-impl Endpoint {
-    pub fn parse(s: &str) -> Result<Endpoint, String> {
-        let (scheme, rest) = s.split_once(':').ok_or_else(|| {
-            format!("MAVLink endpoint {s:?}: expected udpout:HOST:PORT, udpin:HOST:PORT, tcpout:HOST:PORT or serial:PATH:BAUD")
-        })?;
-        let host_port = |rest: &str| -> Result<String, String> {
-            let (host, port) = rest
-                .rsplit_once(':')
-                .ok_or_else(|| format!("MAVLink endpoint {s:?}: missing :PORT"))?;
-            if host.is_empty() {
-                return Err(format!("MAVLink endpoint {s:?}: missing host"));
-            }
-            port.parse::<u16>().map_err(|_| {
-                format!("MAVLink endpoint {s:?}: port {port:?} is not a number 0-65535")
-            })?;
-            Ok(rest.to_string())
-        };
-        match scheme {
-            "udpout" | "udp" => Ok(Endpoint::UdpOut(host_port(rest)?)),
-            "udpin" => Ok(Endpoint::UdpIn(host_port(rest)?)),
-            "tcpout" | "tcp" => Ok(Endpoint::TcpOut(host_port(rest)?)),
-            "serial" => {
-                let (path, baud) = rest
-                    .rsplit_once(':')
-                    .ok_or_else(|| format!("MAVLink endpoint {s:?}: expected serial:PATH:BAUD"))?;
-                let baud = baud.parse::<u32>().map_err(|_| {
-                    format!("MAVLink endpoint {s:?}: baud {baud:?} is not a number")
-                })?;
-                if path.is_empty() {
-                    return Err(format!("MAVLink endpoint {s:?}: missing device path"));
-                }
-                Ok(Endpoint::Serial {
-                    path: path.to_string(),
-                    baud,
-                })
-            }
-            other => Err(format!(
-                "MAVLink endpoint {s:?}: unknown scheme {other:?} (udpout, udpin, tcpout, serial)"
-            )),
-        }
-    }
-}
 
 /// Counters of one endpoint.
 #[derive(Debug, Default)]
@@ -634,40 +578,6 @@ async fn publish_zenoh(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn endpoint_strings() {
-        assert_eq!(
-            Endpoint::parse("udpout:127.0.0.1:14540"),
-            Ok(Endpoint::UdpOut("127.0.0.1:14540".into()))
-        );
-        assert_eq!(
-            Endpoint::parse("udpin:0.0.0.0:14550"),
-            Ok(Endpoint::UdpIn("0.0.0.0:14550".into()))
-        );
-        assert_eq!(
-            Endpoint::parse("tcpout:px4.local:5760"),
-            Ok(Endpoint::TcpOut("px4.local:5760".into()))
-        );
-        assert_eq!(
-            Endpoint::parse("serial:/dev/ttyACM0:921600"),
-            Ok(Endpoint::Serial {
-                path: "/dev/ttyACM0".into(),
-                baud: 921_600
-            })
-        );
-        for bad in [
-            "udpout:1.2.3.4",
-            "udpout::14540",
-            "udpout:host:99999",
-            "ftp:host:1",
-            "serial:/dev/ttyS0:fast",
-            "nothing",
-        ] {
-            let e = Endpoint::parse(bad).expect_err(bad);
-            assert!(e.contains(bad), "{e}");
-        }
-    }
 
     #[tokio::test]
     async fn a_dead_tcp_endpoint_backs_off_and_counts_drops_without_blocking() {

@@ -3,7 +3,8 @@
 //! `data_fusion/pose_msg` (geometry_msgs/PoseStamped) and the debug series as
 //! geometry_msgs/PointStamped, so the seed's rqt_plot commands work unchanged.
 
-use crate::codec::ros::{Header, Point, PointStamped, Pose, PoseStamped, Quaternion, RosMessage};
+use crate::codec::ros::{Point, PointStamped, Pose, PoseStamped, Quaternion, RosMessage};
+use crate::codec::EncodeError;
 use crate::config::OutputConfig;
 use crate::estimator::{DebugSeries, FusedPose};
 use crate::pipeline::{DebugReceiver, PoseReceiver};
@@ -14,17 +15,6 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::broadcast;
 
-/// The seed's debug topics that are published (name under `ros2_debug_prefix`).
-pub const DEBUG_TOPICS: [&str; 8] = [
-    "compensated_OF",
-    "OF_sum",
-    "oriUAV_t265",
-    "oriUAV_gps",
-    "origin_dOF",
-    "origin_dt265",
-    "origin_dgps",
-    "fusion_displace",
-];
 const HEALTH_INTERVAL: Duration = Duration::from_secs(1);
 
 /// Counters for the status API.
@@ -66,21 +56,12 @@ impl ZenohOutStats {
     }
 }
 
-/// A ROS header stamped with a host time in µs.
-pub fn header(time_us: i64, frame_id: &str) -> Header {
-    Header {
-        stamp_sec: time_us.div_euclid(1_000_000) as i32,
-        stamp_nanosec: (time_us.rem_euclid(1_000_000) * 1000) as u32,
-        frame_id: frame_id.to_string(),
-        seq: 0,
-    }
-}
-
-/// geometry_msgs/PoseStamped of the fused pose (ENU, REP-103).
-pub fn pose_stamped(p: &FusedPose, frame_id: &str) -> PoseStamped {
+/// geometry_msgs/PoseStamped of the fused pose (ENU, REP-103); an error for a time ROS
+/// cannot hold.
+pub fn pose_stamped(p: &FusedPose, frame_id: &str) -> Result<PoseStamped, EncodeError> {
     let q = p.orientation;
-    PoseStamped {
-        header: header(p.time_us, frame_id),
+    Ok(PoseStamped {
+        header: crate::codec::ros::header(p.time_us, frame_id, false)?,
         pose: Pose {
             position: Point {
                 x: p.position.x,
@@ -94,7 +75,7 @@ pub fn pose_stamped(p: &FusedPose, frame_id: &str) -> PoseStamped {
                 w: q.w,
             },
         },
-    }
+    })
 }
 
 /// The JSON pose (README "Outputs").
@@ -172,7 +153,10 @@ pub async fn run(
                 }
                 // ROS consumers get only valid poses: rviz and planners cannot read a flag.
                 if cfg.ros2 && p.valid {
-                    ok &= put(cfg.ros2_pose_key.clone(), pose_stamped(&p, &cfg.ros2_frame_id).to_cdr()).await;
+                    match pose_stamped(&p, &cfg.ros2_frame_id) {
+                        Ok(m) => ok &= put(cfg.ros2_pose_key.clone(), m.to_cdr()).await,
+                        Err(e) => stats.error(format!("{}: {e}", cfg.ros2_pose_key)),
+                    }
                 }
                 if ok {
                     stats.poses.fetch_add(1, Relaxed);
@@ -182,12 +166,16 @@ pub async fn run(
                 if changed.is_err() { break; }
                 if !(cfg.ros2 && cfg.ros2_debug) { continue; }
                 let d: Arc<DebugSeries> = inp.debug.borrow_and_update().clone();
-                for topic in DEBUG_TOPICS {
+                for topic in crate::estimator::DEBUG_TOPICS {
                     let Some(pt) = d.series.get(topic) else { continue };
                     if sent_debug.get(topic).is_some_and(|&t| t >= pt.time_us) { continue; }
                     sent_debug.insert(topic, pt.time_us);
+                    let header = match crate::codec::ros::header(pt.time_us, &cfg.ros2_frame_id, false) {
+                        Ok(h) => h,
+                        Err(e) => { stats.error(format!("{topic}: {e}")); continue; }
+                    };
                     let msg = PointStamped {
-                        header: header(pt.time_us, &cfg.ros2_frame_id),
+                        header,
                         point: Point { x: pt.value[0], y: pt.value[1], z: pt.value[2] },
                     };
                     if put(format!("{}/{topic}", cfg.ros2_debug_prefix), msg.to_cdr()).await {
@@ -235,7 +223,7 @@ mod tests {
             invalid_reason: None,
             origin: None,
         };
-        let bytes = pose_stamped(&p, "map").to_cdr();
+        let bytes = pose_stamped(&p, "map").expect("encodes").to_cdr();
         let back = PoseStamped::from_cdr(&bytes).expect("decodes");
         assert_eq!(back.header.stamp_us(false), Some(1_700_000_000_123_456));
         assert_eq!(back.header.frame_id, "map");

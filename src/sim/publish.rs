@@ -88,7 +88,7 @@ pub async fn run_publisher(
         }
     }
     let start = Instant::now();
-    let epoch_us = crate::ingest::now_us();
+    let epoch_us = crate::clock::now_us();
     let mut seq: u8 = 0;
     tokio::pin!(shutdown);
     for ev in sim.by_ref() {

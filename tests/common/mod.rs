@@ -20,6 +20,17 @@ pub fn repo_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// Whether the developer asked to skip the slow tests of `what` with
+/// `SKYFUSE_SKIP=containers,browser,peers` (the fast path in the README); prints why.
+pub fn skip_requested(what: &str, test: &str) -> bool {
+    let asked = std::env::var("SKYFUSE_SKIP").unwrap_or_default();
+    let skip = asked.split(',').any(|w| w.trim() == what || w.trim() == "all");
+    if skip {
+        eprintln!("SKIPPED {test}: SKYFUSE_SKIP={asked} asks to skip the {what} tests");
+    }
+    skip
+}
+
 /// The real third-party programs (ArduCopter SITL, mavlink-server,
 /// zenoh-bridge-ros2dds): $SKYFUSE_PEERS, default ../shared/peers beside the project.
 pub fn peers_dir() -> PathBuf {

@@ -1587,10 +1587,10 @@ mod tests {
     use super::*;
     use std::collections::BTreeMap;
 
-    /// The real flight, trimmed copy in tests/data.
+    /// The real flight, trimmed copy in the repository's tests/data.
     const DATA_DIR: &str = concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/tests/data/px4-flow-vio-7c824ee5"
+        "/../../tests/data/px4-flow-vio-7c824ee5"
     );
 
     fn real() -> &'static Px4Log {
@@ -2123,7 +2123,7 @@ mod tests {
     #[test]
     fn the_real_ulog_reads_directly() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("tests/data/px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg");
+            .join("../../tests/data/px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg");
         let log = read_ulog_with_progress(&path, &mut |_, _| {}).unwrap_or_else(|e| panic!("{e}"));
         let count = |src: &str| {
             log.samples

@@ -409,7 +409,9 @@ fn cov6_rows(m: &Option<Matrix6<f64>>) -> Option<Vec<f64>> {
     m.map(|m| m.transpose().as_slice().to_vec())
 }
 
-fn header(stamp_us: Micros, frame_id: &str, ros1: bool) -> Result<Header, EncodeError> {
+/// A ROS header at `stamp_us` (µs since the epoch): an error, never a wrapped stamp,
+/// beyond what ROS time holds (ROS 2 signed 32-bit seconds, ROS 1 unsigned).
+pub fn header(stamp_us: Micros, frame_id: &str, ros1: bool) -> Result<Header, EncodeError> {
     let sec = stamp_us.div_euclid(1_000_000);
     let nanosec = (stamp_us.rem_euclid(1_000_000) * 1000) as u32;
     // ROS 1 time is unsigned seconds, ROS 2 signed 32-bit; kept bit for bit in i32.

@@ -17,6 +17,8 @@ pub mod wire;
 #[cfg(test)]
 mod tests;
 
+pub use convert::header;
+
 pub use msgs::{
     FlowTof, Header, Imu, NavSatFix, NavSatStatus, Odometry, Point, PointStamped, Pose,
     PoseStamped, PoseWithCovariance, PoseWithCovarianceStamped, Quaternion, Range, RosMessage,

@@ -682,7 +682,7 @@ mod tests {
         })
     }
 
-    /// Writes the fixtures for `evo_ape` (see tools/evo_crosscheck.sh).
+    /// Writes the fixtures for `evo_ape` (see tests/py/evo_crosscheck.sh).
     #[test]
     #[ignore = "writes fixtures for the evo cross-check into $EVO_FIXTURE_DIR"]
     fn write_evo_fixtures() {
@@ -726,7 +726,7 @@ mod tests {
         ("drop_ref", 0xcc6c97ba0eca13dc, 0x7e2fd5f22809de8e),
     ];
 
-    /// evo 1.38.1, `tools/evo_crosscheck.sh`: `evo_ape tum <case>_ref.tum <case>_est.tum
+    /// evo 1.38.1, `tests/py/evo_crosscheck.sh`: `evo_ape tum <case>_ref.tum <case>_est.tum
     /// <args> --save_results`: (case, args, [rmse, mean, median, std, min, max, sse], n).
     const EVO: [(&str, &str, [f64; 7], usize); 17] = [
         (

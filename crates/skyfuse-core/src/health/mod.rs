@@ -287,13 +287,12 @@ const IMU_STILL_ACCEL: f64 = 0.25;
 pub const ESTIMATOR_ID: &str = "estimator";
 
 impl HealthMonitor {
-    /// `sensors`: (id, kind, expected rate, enabled).
-    pub fn new(cfg: HealthConfig, sensors: &[(String, SensorKind, f64, bool)]) -> Self {
+    pub fn new(cfg: HealthConfig, sensors: &[crate::fusion::InputSpec]) -> Self {
         let mut map = BTreeMap::new();
-        for (id, kind, rate, enabled) in sensors {
+        for s in sensors {
             map.insert(
-                id.clone(),
-                SensorHealth::new(id, Some(*kind), *rate, !enabled),
+                s.id.clone(),
+                SensorHealth::new(&s.id, Some(s.kind), s.rate_hz, !s.enabled),
             );
         }
         map.insert(

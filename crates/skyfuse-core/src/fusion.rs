@@ -1,6 +1,6 @@
 //! The estimator under health supervision: every sample is checked, the health layer's
 //! verdicts decide which sources the estimator may fuse, and both produce events. The
-//! service ([`crate::pipeline`]) and offline runs ([`crate::offline`]) use this same
+//! service (its `pipeline`) and offline runs ([`crate::offline`]) use this same
 //! core, so what is measured offline is what flies. Pure: time comes with the samples.
 
 use crate::estimator::{Estimator, EstimatorConfig, EstimatorEvent};
@@ -20,8 +20,30 @@ pub struct Fusion {
     pub invalid: u64,
 }
 
-/// `(id, kind, expected rate Hz, enabled)` of each input.
-pub type InputList = Vec<(String, SensorKind, f64, bool)>;
+/// One configured input as the health layer sees it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InputSpec {
+    pub id: String,
+    pub kind: SensorKind,
+    /// Expected rate, Hz (staleness and low-rate checks).
+    pub rate_hz: f64,
+    pub enabled: bool,
+}
+
+impl InputSpec {
+    /// An enabled input.
+    pub fn new(id: impl Into<String>, kind: SensorKind, rate_hz: f64) -> Self {
+        Self {
+            id: id.into(),
+            kind,
+            rate_hz,
+            enabled: true,
+        }
+    }
+}
+
+/// Every input of a run.
+pub type InputList = Vec<InputSpec>;
 
 impl Fusion {
     pub fn new(est: EstimatorConfig, health: HealthConfig, inputs: &InputList) -> Self {

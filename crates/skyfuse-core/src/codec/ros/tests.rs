@@ -11,8 +11,8 @@ use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector2, Vector3 as V3};
 use proptest::prelude::*;
 use serde_json::{json, Value};
 
-const GOLDEN: &str = include_str!("../../../tests/data/bridges/ros2dds-samples.jsonl");
-const VECTORS: &str = include_str!("../../../tests/data/ros_vectors.json");
+const GOLDEN: &str = include_str!("../../../../../tests/data/bridges/ros2dds-samples.jsonl");
+const VECTORS: &str = include_str!("../../../../../tests/data/ros_vectors.json");
 
 fn unhex(s: &str) -> Vec<u8> {
     assert!(s.len().is_multiple_of(2), "odd hex length");

@@ -88,6 +88,18 @@ pub struct EstimatorEvent {
     pub data: serde_json::Value,
 }
 
+/// The seed's debug topics that are published (name under `ros2_debug_prefix`).
+pub const DEBUG_TOPICS: [&str; 8] = [
+    "compensated_OF",
+    "OF_sum",
+    "oriUAV_t265",
+    "oriUAV_gps",
+    "origin_dOF",
+    "origin_dt265",
+    "origin_dgps",
+    "fusion_displace",
+];
+
 /// One point of a debug series (the seed's rqt_plot topics).
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct DebugPoint {

@@ -8,7 +8,7 @@
 
 use crate::estimator::{Estimator, EstimatorConfig, EstimatorEvent, Mode};
 use crate::eval::{evo_ape, ApeOptions, ApeStats, Trajectory};
-use crate::fusion::{Fusion, InputList};
+use crate::fusion::{Fusion, InputList, InputSpec};
 use crate::geo::LocalEnu;
 use crate::health::HealthConfig;
 use crate::sample::{GnssFixType, Sample, SensorData, SensorKind};
@@ -530,7 +530,7 @@ pub fn run_scenario(
     let inputs: InputList = scn
         .streams
         .iter()
-        .map(|s| (s.input_id.to_string(), s.kind, s.rate_hz, true))
+        .map(|s| InputSpec::new(s.input_id, s.kind, s.rate_hz))
         .collect();
     let mut fusion = Fusion::new(cfg, health, &inputs);
     let mut rec = Recorder::new(0);
@@ -611,7 +611,7 @@ fn replay_inputs(samples: &[Sample]) -> InputList {
     seen.into_iter()
         .map(|(id, (kind, n, first, last))| {
             let span = ((last - first) as f64 * 1e-6).max(1e-3);
-            (id.to_string(), kind, (n as f64 / span).max(0.1), true)
+            InputSpec::new(id, kind, (n as f64 / span).max(0.1))
         })
         .collect()
 }

@@ -1,4 +1,5 @@
 use super::*;
+use crate::fusion::InputSpec;
 use crate::sample::*;
 use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector2, Vector3};
 use std::sync::Arc;
@@ -7,11 +8,14 @@ fn monitor() -> HealthMonitor {
     HealthMonitor::new(
         HealthConfig::default(),
         &[
-            ("gps".into(), SensorKind::Gnss, 10.0, true),
-            ("flow".into(), SensorKind::Flow, 50.0, true),
-            ("t265".into(), SensorKind::Odometry, 200.0, true),
-            ("imu".into(), SensorKind::Imu, 200.0, true),
-            ("lidar".into(), SensorKind::Range, 20.0, false),
+            InputSpec::new("gps", SensorKind::Gnss, 10.0),
+            InputSpec::new("flow", SensorKind::Flow, 50.0),
+            InputSpec::new("t265", SensorKind::Odometry, 200.0),
+            InputSpec::new("imu", SensorKind::Imu, 200.0),
+            InputSpec {
+                enabled: false,
+                ..InputSpec::new("lidar", SensorKind::Range, 20.0)
+            },
         ],
     )
 }

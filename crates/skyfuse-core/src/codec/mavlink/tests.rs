@@ -10,8 +10,8 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use serde_json::Value;
 
-const GOLDEN: &str = include_str!("../../../tests/data/bridges/mavlink-server-samples.jsonl");
-const VECTORS: &str = include_str!("../../../tests/data/mavlink_vectors.json");
+const GOLDEN: &str = include_str!("../../../../../tests/data/bridges/mavlink-server-samples.jsonl");
+const VECTORS: &str = include_str!("../../../../../tests/data/mavlink_vectors.json");
 
 fn golden(label: &str) -> String {
     for line in GOLDEN.lines() {
