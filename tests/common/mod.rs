@@ -24,7 +24,9 @@ pub fn repo_root() -> PathBuf {
 /// `SKYFUSE_SKIP=containers,browser,peers` (the fast path in the README); prints why.
 pub fn skip_requested(what: &str, test: &str) -> bool {
     let asked = std::env::var("SKYFUSE_SKIP").unwrap_or_default();
-    let skip = asked.split(',').any(|w| w.trim() == what || w.trim() == "all");
+    let skip = asked
+        .split(',')
+        .any(|w| w.trim() == what || w.trim() == "all");
     if skip {
         eprintln!("SKIPPED {test}: SKYFUSE_SKIP={asked} asks to skip the {what} tests");
     }

@@ -20,27 +20,7 @@ pub struct Fusion {
     pub invalid: u64,
 }
 
-/// One configured input as the health layer sees it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct InputSpec {
-    pub id: String,
-    pub kind: SensorKind,
-    /// Expected rate, Hz (staleness and low-rate checks).
-    pub rate_hz: f64,
-    pub enabled: bool,
-}
-
-impl InputSpec {
-    /// An enabled input.
-    pub fn new(id: impl Into<String>, kind: SensorKind, rate_hz: f64) -> Self {
-        Self {
-            id: id.into(),
-            kind,
-            rate_hz,
-            enabled: true,
-        }
-    }
-}
+pub use crate::health::InputSpec;
 
 /// Every input of a run.
 pub type InputList = Vec<InputSpec>;

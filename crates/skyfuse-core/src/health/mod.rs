@@ -283,11 +283,33 @@ const IMU_STILL_AFTER_US: i64 = 1_000_000;
 const IMU_STILL_GYRO: f64 = 0.05;
 const IMU_STILL_ACCEL: f64 = 0.25;
 
+/// One configured input as the health layer sees it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct InputSpec {
+    pub id: String,
+    pub kind: SensorKind,
+    /// Expected rate, Hz (staleness and low-rate checks).
+    pub rate_hz: f64,
+    pub enabled: bool,
+}
+
+impl InputSpec {
+    /// An enabled input.
+    pub fn new(id: impl Into<String>, kind: SensorKind, rate_hz: f64) -> Self {
+        Self {
+            id: id.into(),
+            kind,
+            rate_hz,
+            enabled: true,
+        }
+    }
+}
+
 /// The name of the estimator's own health entry.
 pub const ESTIMATOR_ID: &str = "estimator";
 
 impl HealthMonitor {
-    pub fn new(cfg: HealthConfig, sensors: &[crate::fusion::InputSpec]) -> Self {
+    pub fn new(cfg: HealthConfig, sensors: &[InputSpec]) -> Self {
         let mut map = BTreeMap::new();
         for s in sensors {
             map.insert(

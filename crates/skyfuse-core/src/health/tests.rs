@@ -1,5 +1,4 @@
 use super::*;
-use crate::fusion::InputSpec;
 use crate::sample::*;
 use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector2, Vector3};
 use std::sync::Arc;
