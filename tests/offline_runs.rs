@@ -145,18 +145,7 @@ fn on_every_scenario_the_fused_track_beats_the_best_single_source() {
     let mut table = vec![];
     let mut losers = vec![];
     for (name, _) in skyfuse::sim::scenario::NAMES {
-        let scn = scenario(name).expect("scenario");
-        let out = tmp(&format!("all-{name}"));
-        let s = run_scenario(
-            &scn,
-            1,
-            skyfuse::sim::scenario::DEFAULT_DURATION_S,
-            EstimatorConfig::default(),
-            HealthConfig::default(),
-            &out,
-            &mut |_| {},
-        )
-        .expect("run");
+        let (out, s) = run_named(name);
         let (fused, best) = s.fused_and_best_source();
         let fused = fused.unwrap_or_else(|| panic!("{name}: no fused score"));
         let (src, b) = best.unwrap_or_else(|| panic!("{name}: no source score"));
@@ -188,9 +177,10 @@ fn read_tum(path: &Path) -> Vec<(f64, [f64; 3])> {
         .collect()
 }
 
+/// One loop of scenario `name`, seed 1, default config, into a scratch directory.
 fn run_named(name: &str) -> (PathBuf, skyfuse::offline::Summary) {
     let scn = scenario(name).expect("scenario");
-    let out = tmp(name);
+    let out = tmp(&format!("scn-{name}"));
     let s = run_scenario(
         &scn,
         1,

@@ -566,26 +566,23 @@ mod tests {
             "[[inputs]]\nid=\"attitude\"\nkind=\"attitude\"\nkey=\"mavlink/*/*/ATTITUDE\"\nformat=\"mavlink-json\"\nrate_hz=50\n",
         );
         let input = ing.inputs[0].clone();
-        let key = "mavlink/1/1/ATTITUDE";
-        let mut accepted = 0;
+        // `n` samples at 50 Hz from autopilot time `boot_ms`, arriving from `arrival_us`;
+        // how many were accepted.
+        let feed = |boot_ms: u32, arrival_us: i64, n: u32| -> usize {
+            (0..n)
+                .map(|i| {
+                    let t = arrival_us + i64::from(i) * 20_000;
+                    let payload = attitude_json(boot_ms + i * 20);
+                    ing.accept(&input, "mavlink/1/1/ATTITUDE", payload.as_bytes(), t)
+                        .len()
+                })
+                .sum()
+        };
         // 150 samples up to 600 s of autopilot time, then it reboots: time_boot_ms
         // starts again at 1 s, as the reliability issue saw, for 5 s at 50 Hz.
-        for i in 0..150u32 {
-            let t = 1_000_000 + i64::from(i) * 20_000;
-            accepted += ing
-                .accept(&input, key, attitude_json(597_000 + i * 20).as_bytes(), t)
-                .len();
-        }
-        assert_eq!(accepted, 150);
-        let mut after = 0;
-        for i in 0..250u32 {
-            let t = 5_000_000 + i64::from(i) * 20_000;
-            after += ing
-                .accept(&input, key, attitude_json(1_000 + i * 20).as_bytes(), t)
-                .len();
-        }
+        assert_eq!(feed(597_000, 1_000_000, 150), 150);
         // The first two of the new series are refused, then it is the series.
-        assert_eq!(after, 248);
+        assert_eq!(feed(1_000, 5_000_000, 250), 248);
         let s = input.status(10_000_000);
         assert_eq!((s.rejected, s.clock_restarts), (2, 1));
         let text = s.last_clock_restart.expect("restart text");
