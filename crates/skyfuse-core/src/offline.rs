@@ -240,12 +240,10 @@ pub struct Availability {
 
 /// Availability from the validity ticks and the airborne changes.
 fn availability(validity: &[(f64, bool)], airborne: &[(f64, bool)]) -> Availability {
-    let air_at = |t: f64| -> Option<bool> {
+    // In the air at `t`: the last change at or before it (on the ground before the first).
+    let air_at = |t: f64| -> bool {
         let i = airborne.partition_point(|(ta, _)| *ta <= t);
-        i.checked_sub(1)
-            .map(|j| airborne[j].1)
-            .or(Some(false))
-            .filter(|_| !airborne.is_empty())
+        i > 0 && airborne[i - 1].1
     };
     let mut span = 0.0;
     let mut valid = 0.0;
@@ -265,7 +263,7 @@ fn availability(validity: &[(f64, bool)], airborne: &[(f64, bool)]) -> Availabil
             gap += dt;
             longest = longest.max(gap);
         }
-        if air_at(t) == Some(true) {
+        if air_at(t) {
             air += dt;
             if ok {
                 air_valid += dt;

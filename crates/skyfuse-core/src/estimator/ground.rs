@@ -25,6 +25,7 @@
 //! track continues from the held position: no jump, no reset.
 
 use super::ekf::{dvec, GRAVITY, IDX_P, IDX_TERRAIN, IDX_V};
+use super::imu::Lpf3;
 use super::{Core, Ctx};
 use crate::sample::{LandedState, VehicleState};
 use nalgebra::{DMatrix, Vector3};
@@ -79,9 +80,9 @@ pub struct GroundState {
     pub range_in_range: Option<i64>,
     /// Low-passed specific force and rate (body), and the last IMU time; the slow
     /// low-pass of the specific force is gravity's direction in the body.
-    accel_lpf: Option<Vector3<f64>>,
-    accel_slow: Option<Vector3<f64>>,
-    gyro_lpf: Option<Vector3<f64>>,
+    accel_lpf: Lpf3,
+    accel_slow: Lpf3,
+    gyro_lpf: Lpf3,
     imu_t: Option<i64>,
     /// Since when the IMU has looked still.
     still_since: Option<i64>,
@@ -116,35 +117,28 @@ pub fn imu_sample(
     gyro: Option<Vector3<f64>>,
     accel: Option<Vector3<f64>>,
 ) {
-    let dt = g
-        .imu_t
-        .map_or(0.0, |t0| ((t - t0) as f64 * 1e-6).clamp(0.0, 0.5));
     g.imu_t = Some(t);
-    let lpf = |y: &mut Option<Vector3<f64>>, x: Option<Vector3<f64>>, tau: f64| {
-        let alpha = (dt / (dt + tau)).min(1.0);
-        if let Some(x) = x {
-            *y = Some(match *y {
-                Some(y0) if dt > 0.0 => y0 + (x - y0) * alpha,
-                Some(y0) => y0,
-                None => x,
-            });
-        }
-    };
-    lpf(&mut g.accel_lpf, accel, REST_LPF_TAU_S);
-    lpf(&mut g.accel_slow, accel, REST_SLOW_TAU_S);
-    lpf(&mut g.gyro_lpf, gyro, REST_LPF_TAU_S);
+    // Time constant τ as the cut-off 1/(2πτ) of imu's first-order low-pass.
+    let hz = |tau: f64| 1.0 / (2.0 * std::f64::consts::PI * tau);
+    if let Some(a) = accel {
+        g.accel_lpf.update(a, t, hz(REST_LPF_TAU_S));
+        g.accel_slow.update(a, t, hz(REST_SLOW_TAU_S));
+    }
+    if let Some(w) = gyro {
+        g.gyro_lpf.update(w, t, hz(REST_LPF_TAU_S));
+    }
     // Still: the specific force is gravity alone (its magnitude) and steady (no
     // departure from its slow average in any direction: a carry sways sideways, which
     // the magnitude alone hardly shows), and no rotation.
-    let accel_still = match (g.accel_lpf, g.accel_slow) {
+    let accel_still = match (g.accel_lpf.y, g.accel_slow.y) {
         (Some(f), Some(s)) => {
             (f.norm() - GRAVITY).abs() < REST_ACCEL && (f - s).norm() < REST_ACCEL
         }
         _ => true,
     };
     let still = accel_still
-        && g.gyro_lpf.is_none_or(|w| w.norm() < REST_GYRO)
-        && (g.accel_lpf.is_some() || g.gyro_lpf.is_some());
+        && g.gyro_lpf.y.is_none_or(|w| w.norm() < REST_GYRO)
+        && (g.accel_lpf.y.is_some() || g.gyro_lpf.y.is_some());
     if !still {
         g.still_since = None;
     } else if g.still_since.is_none() {
@@ -163,10 +157,16 @@ pub fn range_sample(g: &mut GroundState, t: i64, reading: f64, min: f64, low: bo
 }
 
 impl GroundState {
+    /// The autopilot's arming state, if it said so lately.
+    fn armed_now(&self, t: i64) -> Option<bool> {
+        self.armed
+            .filter(|(at, _)| t - at <= STATE_FRESH_US)
+            .map(|(_, a)| a)
+    }
+
     /// The autopilot says disarmed (fresh).
     fn disarmed_now(&self, t: i64) -> bool {
-        self.armed
-            .is_some_and(|(at, a)| !a && t - at <= STATE_FRESH_US)
+        self.armed_now(t) == Some(false)
     }
 
     /// Disarmed, and yet lifted off its gear or moving: carried by hand (or on a cart).
@@ -181,10 +181,7 @@ impl GroundState {
             .landed
             .filter(|(lt, _)| t - lt <= STATE_FRESH_US)
             .map(|(_, l)| l == LandedState::OnGround);
-        let disarmed = self
-            .armed
-            .filter(|(at, _)| t - at <= STATE_FRESH_US)
-            .map(|(_, a)| !a);
+        let disarmed = self.armed_now(t).map(|a| !a);
         match (landed, disarmed) {
             // The land detector knows better than the arming state (armed on the ground
             // before take-off, or disarmed in a carry).

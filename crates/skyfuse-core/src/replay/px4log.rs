@@ -226,8 +226,8 @@ fn read_topics(
     })
 }
 
+/// Source `from` (and its instances `from_i`) becomes `to` (`to_i`).
 fn rename(samples: &mut [Sample], from: &str, to: &str) {
-    let to: Arc<str> = Arc::from(to);
     for s in samples.iter_mut() {
         if let Some(rest) = s.source.strip_prefix(from) {
             if rest.is_empty() || rest.starts_with('_') {
@@ -235,21 +235,27 @@ fn rename(samples: &mut [Sample], from: &str, to: &str) {
             }
         }
     }
-    let _ = to;
+}
+
+/// Takes the rows of an internal rate source out of `samples`: (time, gyro), by time.
+fn take_rates(samples: &mut Vec<Sample>, source: &str) -> Vec<(i64, Vector3<f64>)> {
+    let rows = samples
+        .iter()
+        .filter(|s| s.source.as_ref() == source)
+        .filter_map(|s| match (&s.data, s.stamp_us) {
+            (SensorData::Imu(i), Some(t)) => i.gyro.map(|g| (t, g)),
+            _ => None,
+        })
+        .collect();
+    samples.retain(|s| s.source.as_ref() != source);
+    rows
 }
 
 /// The attitude topic has no rates; `vehicle_angular_velocity` (its own topic, FRD)
 /// gives them to the attitude samples of the same time (within 10 ms), as MAVLink's
 /// ATTITUDE carries both. Its rows are then dropped.
 fn attach_angular_velocity(samples: &mut Vec<Sample>) {
-    let rates: Vec<(i64, Vector3<f64>)> = samples
-        .iter()
-        .filter(|s| s.source.as_ref() == "angular_velocity")
-        .filter_map(|s| match (&s.data, s.stamp_us) {
-            (SensorData::Imu(i), Some(t)) => i.gyro.map(|g| (t, g)),
-            _ => None,
-        })
-        .collect();
+    let rates = take_rates(samples, "angular_velocity");
     if rates.is_empty() {
         return;
     }
@@ -266,7 +272,6 @@ fn attach_angular_velocity(samples: &mut Vec<Sample>) {
             }
         }
     }
-    samples.retain(|s| s.source.as_ref() != "angular_velocity");
 }
 
 /// The row of `rows` (sorted by time) nearest to `t`.
@@ -317,15 +322,7 @@ fn attitude_from_ekf2_heading(samples: &mut Vec<Sample>) -> usize {
 /// OPTICAL_FLOW_RAD's integrated gyro would carry it. Its rows are then dropped. Returns
 /// how many flow samples got one.
 fn attach_ekf2_flow_gyro(samples: &mut Vec<Sample>) -> usize {
-    let rows: Vec<(i64, Vector3<f64>)> = samples
-        .iter()
-        .filter(|s| s.source.as_ref() == EKF2_FLOW_GYRO)
-        .filter_map(|s| match (&s.data, s.stamp_us) {
-            (SensorData::Imu(i), Some(t)) => i.gyro.map(|g| (t, g)),
-            _ => None,
-        })
-        .collect();
-    samples.retain(|s| s.source.as_ref() != EKF2_FLOW_GYRO);
+    let rows = take_rates(samples, EKF2_FLOW_GYRO);
     let mut n = 0;
     for s in samples.iter_mut().filter(|s| s.source.as_ref() == "flow") {
         let (Some(t), SensorData::Flow(f)) = (s.stamp_us, &mut s.data) else {
