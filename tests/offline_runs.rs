@@ -62,16 +62,14 @@ fn a_scenario_run_twice_gives_byte_identical_files() {
 #[test]
 fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
     // The whole 307 s log, scored on the poses the service would have sent (valid
-    // ones), under both alignments. Fused: the flow sensors, range finders, attitude
-    // (EKF2's heading: the export has no vehicle_attitude) and the low-rate IMU; the
-    // autopilot's land detector and arming state as the service gets them.
+    // ones), under both alignments. Fused: the flow sensors, range finders and
+    // attitude only (EKF2's heading tilted as its 1 Hz quaternion: the export has no
+    // vehicle_attitude); the autopilot's land detector and arming state as the service
+    // gets them. Through it: held on its side (54-64 s, the range reading a wall 4 m
+    // away), carried 6 m by hand (87-96 s, off a table and set down on the floor).
     let log = skyfuse::replay::px4log::read_dir(Path::new(PX4_FLOW_VIO)).expect("PX4 CSV");
     let opts = ReplayOptions {
-        fuse: Some(
-            ["flow", "range", "attitude", "imu"]
-                .map(String::from)
-                .to_vec(),
-        ),
+        fuse: Some(["flow", "range", "attitude"].map(String::from).to_vec()),
         reference: "vio".into(),
         window: None,
     };
@@ -113,15 +111,18 @@ fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
         "whole log vs VIO, RMSE / max (m): SE(3) skyfuse {:.3} / {:.3}, EKF2 {:.3} / {:.3}; origin-aligned skyfuse {:.3} / {:.3}, EKF2 {:.3} / {:.3}; {:?}",
         f_se3.0, f_se3.1, e_se3.0, e_se3.1, f_org.0, f_org.1, e_org.0, e_org.1, s.availability
     );
-    // Origin-aligned (an offset carried from the start counts in full): closer than EKF2.
+    // Origin-aligned (an offset carried from the start counts in full, the carry's
+    // among it): closer than EKF2, in RMSE and maximum.
     assert!(
         f_org.0 < e_org.0 && f_org.1 < e_org.1,
         "origin-aligned {f_org:?} vs EKF2 {e_org:?}"
     );
-    // SE(3)-aligned: within 25 % of EKF2's RMSE and 1.5 m of its maximum (the 52-66 s
-    // carry, range reading 4 m while the vehicle was lifted 0.2 m, costs the rest).
+    // SE(3)-aligned: RMSE below EKF2's; the maximum within 0.75 m of it. In flight
+    // this flow sensor reads 5-6 % slow against the VIO (EKF2's own flow velocity,
+    // estimator_optical_flow_vel, the same); EKF2 corrects that with its 1 kHz IMU,
+    // which this export does not have (vehicle_imu at 2 Hz).
     assert!(
-        f_se3.0 < 1.25 * e_se3.0 && f_se3.1 < e_se3.1 + 1.5,
+        f_se3.0 < e_se3.0 && f_se3.1 < e_se3.1 + 0.75,
         "SE(3) {f_se3:?} vs EKF2 {e_se3:?}"
     );
     // No runaway on the ground: every estimate, valid or not, stays near the room.
@@ -136,7 +137,9 @@ fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
         .availability
         .airborne_valid_fraction
         .expect("airborne known");
-    assert!(air > 0.9, "{:?}", s.availability);
+    assert!(air > 0.97, "{:?}", s.availability);
+    let gap = s.availability.airborne_longest_invalid_s.expect("airborne known");
+    assert!(gap < 1.0, "{:?}", s.availability);
     assert!(a.join("vio.tum").exists() && a.join("ekf2.tum").exists());
 }
 

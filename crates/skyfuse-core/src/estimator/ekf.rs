@@ -331,6 +331,37 @@ impl Ekf {
         self.symmetrise();
     }
 
+    /// The normalised innovation test ratio a measurement would get (NIS / gate), without
+    /// updating: infinite when S is singular.
+    pub fn test_ratio(
+        &self,
+        y: &DVector<f64>,
+        h: &DMatrix<f64>,
+        r: &DMatrix<f64>,
+        gate: f64,
+    ) -> f64 {
+        let s = h * &self.p * h.transpose() + r;
+        let s = (&s + s.transpose()) * 0.5;
+        match s.cholesky() {
+            Some(chol) if gate > 0.0 => y.dot(&chol.solve(y)) / gate,
+            Some(_) => 0.0,
+            None => f64::INFINITY,
+        }
+    }
+
+    /// Set the terrain height (a terrain reset): uncorrelated with the rest, variance
+    /// `var`. The vehicle's position is untouched.
+    pub fn reset_terrain(&mut self, terrain: f64, var: f64) {
+        let n = self.n();
+        self.x[IDX_TERRAIN] = terrain;
+        for j in 0..n {
+            self.p[(IDX_TERRAIN, j)] = 0.0;
+            self.p[(j, IDX_TERRAIN)] = 0.0;
+        }
+        self.p[(IDX_TERRAIN, IDX_TERRAIN)] = var;
+        self.symmetrise();
+    }
+
     /// Shift the position (origin reset); the covariance is unchanged.
     pub fn shift_position(&mut self, d: Vector3<f64>) {
         let p = self.pos() + d;

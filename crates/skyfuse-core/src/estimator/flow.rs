@@ -1,6 +1,8 @@
 //! Optical flow (seed 001 pipeline, seed 000 calibration).
 //!
-//! Checks: quality, finite rates within `max_rate`, a height. Preprocessing: per-axis
+//! Checks: quality, tilt below `range_max_tilt_rad` (tilted further, the camera sees a
+//! wall or the horizon, not the ground below: EKF2 gates flow with the range finder's
+//! tilt limit too), finite rates within `max_rate`, a height. Preprocessing: per-axis
 //! scale factors; rotation compensation with the flow module's own gyro (OPTICAL_FLOW_RAD
 //! style) or the IMU gyro low-passed to the flow's phase (3 Hz) and clamped; scaling by
 //! the height along the body's down axis (the module's ToF, else the latest range finder
@@ -178,6 +180,11 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     let sc = cfg.source(source);
     if f.quality < cfg.flow_min_quality {
         core.reject(t, source, "quality below flow_min_quality", ctx);
+        core.flow.entry(source.to_string()).or_default().last_t = Some(t);
+        return;
+    }
+    if core.att.known() && cos_tilt(&core.att.q) < cfg.range_max_tilt_rad.cos() {
+        core.reject(t, source, "tilt too large for the flow", ctx);
         core.flow.entry(source.to_string()).or_default().last_t = Some(t);
         return;
     }

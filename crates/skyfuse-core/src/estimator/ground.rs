@@ -221,7 +221,6 @@ pub fn control(core: &mut Core, ctx: &Ctx, t: i64) {
     if core.mode_wrls {
         return;
     }
-    let on_ground = core.ground.on_ground(t);
     if core.ground.disarmed_now(t) {
         let lifted = core
             .ground
@@ -247,6 +246,9 @@ pub fn control(core: &mut Core, ctx: &Ctx, t: i64) {
             core.ground.handled_until = Some(t + HANDLED_HOLD_US);
         }
     }
+    // A carried vehicle is not at rest, whatever the land detector says (it does not
+    // see a carry; without an IMU its word is all the stillness test has).
+    let on_ground = core.ground.on_ground(t) && !core.ground.handled(t);
     if on_ground {
         core.ground.on_ground_since.get_or_insert(t);
     } else {

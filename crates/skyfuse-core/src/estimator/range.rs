@@ -1,17 +1,39 @@
-//! Range finder (downward): height above a flat terrain at z = 0 of the origin.
+//! Range finder (downward): height above the terrain (a state, flat unless reset).
 //!
 //! Checks: finite, strictly inside (min, max) (config overrides the sample's limits; a
-//! reading at a limit is a clamp, not a distance), pointing down, tilt below
+//! reading at a limit is a clamp, not a distance), not flagged invalid by the sensor
+//! (a reading at or below the minimum still says "on the ground"), pointing down, tilt below
 //! `range_max_tilt_rad`. Control: kept as the flow's height; fused when the filter is
-//! initialised. Fuse: z = d · cos(tilt), 1-D.
+//! initialised. Terrain reset (EKF2's `resetTerrainToRng`), when the reading fails the
+//! innovation gate and either follows readings at or below the minimum (the vehicle
+//! left the surface it stood on; the ground constraint's height no longer applies),
+//! or steps from the previous reading faster than [`RANGE_STEP_SPEED`] (no vehicle
+//! climbs or sinks that fast: the edge of a table or a roof passed below), or no
+//! reading of this source has passed for [`HGT_FUSION_TIMEOUT_US`] (EKF2's
+//! `hgt_fusion_timeout_max`: the ground under it has changed for good). The terrain
+//! moves, the vehicle does not; a lone spike resets it twice and leaves the pose alone. Fuse: h = d · cos(tilt),
+//! 1-D, against z − terrain.
 
 use super::attitude::cos_tilt;
 use super::config::{DEFAULT_RANGE_MAX_M, DEFAULT_RANGE_MIN_M};
+use super::ekf::{dvec, IDX_P, IDX_TERRAIN};
 use super::{Core, Ctx};
 use crate::sample::Range;
+use nalgebra::DMatrix;
+
+/// A range source none of whose readings passed the gate for this long resets the
+/// terrain to its reading, µs (EKF2's `hgt_fusion_timeout_max`).
+pub const HGT_FUSION_TIMEOUT_US: i64 = 5_000_000;
+/// A change of reading faster than this, m/s, is the ground stepping, not the vehicle
+/// moving (multirotors climb at 2.5–3 m/s: ArduPilot PILOT_SPEED_UP, PX4
+/// MPC_Z_VEL_MAX_UP).
+pub const RANGE_STEP_SPEED: f64 = 10.0;
 
 /// MAV_SENSOR_ROTATION_PITCH_270: downward.
 const MAV_SENSOR_DOWN: u8 = 25;
+/// DISTANCE_SENSOR.signal_quality: 0 unknown, 1 invalid signal, 100 perfect (PX4's
+/// `distance_sensor` 0, which EKF2 does not use either).
+const SIGNAL_INVALID: u8 = 1;
 
 pub fn checks(r: &Range, min: f64, max: f64) -> Result<(), &'static str> {
     if !r.distance_m.is_finite() {
@@ -22,6 +44,9 @@ pub fn checks(r: &Range, min: f64, max: f64) -> Result<(), &'static str> {
     }
     if r.distance_m <= min || r.distance_m >= max {
         return Err("distance outside the sensor's range");
+    }
+    if r.signal_quality == Some(SIGNAL_INVALID) {
+        return Err("the sensor flags the signal invalid");
     }
     Ok(())
 }
@@ -43,13 +68,19 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, r: &Range) {
         core.reject(t, source, why, ctx);
         return;
     }
+    let after_ground = core.ground.range_says_ground(t);
     super::ground::range_sample(&mut core.ground, t, r.distance_m, min, false);
-    core.range.insert(source.to_string(), (t, r.distance_m));
     let ct = cos_tilt(&core.att.q);
     if !core.att.known() || ct < cfg.range_max_tilt_rad.cos() {
         core.reject(t, source, "tilt too large for the range finder", ctx);
         return;
     }
+    // Kept as the flow's scale only when it is a distance to the ground below.
+    let previous = core.range.insert(source.to_string(), (t, r.distance_m));
+    let stepped = previous.is_some_and(|(tp, dp)| {
+        let dt = (t - tp) as f64 * 1e-6;
+        dt > 0.0 && dt < 1.0 && (r.distance_m - dp).abs() > RANGE_STEP_SPEED * dt
+    });
     let noise = sc.noise.unwrap_or(cfg.range_noise);
     let var = r
         .variance
@@ -58,17 +89,67 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, r: &Range) {
     let h = r.distance_m * ct;
     core.wrls.add_height(source, h, var * ct * ct);
     if core.initialised() {
+        let failing = core
+            .stats
+            .get(source)
+            .and_then(|st| st.last_fused_us)
+            .is_none_or(|f| t - f > HGT_FUSION_TIMEOUT_US);
+        if after_ground || stepped || failing {
+            reset_terrain_if_rejected(core, ctx, t, source, r.distance_m, var);
+        }
         fuse_height(core, ctx, t, source, r.distance_m, var);
     }
 }
 
+/// Start condition of a range source after the ground or a long rejection: a reading
+/// the gate would refuse moves the terrain under the vehicle instead.
+fn reset_terrain_if_rejected(
+    core: &mut Core,
+    ctx: &Ctx,
+    t: i64,
+    source: &str,
+    slant: f64,
+    var: f64,
+) {
+    let (h_meas, r) = height_of(core, slant, var);
+    let Some(ekf) = core.ekf.as_mut() else { return };
+    let mut hm = DMatrix::zeros(1, ekf.n());
+    hm[(0, IDX_P + 2)] = 1.0;
+    hm[(0, IDX_TERRAIN)] = -1.0;
+    let before = ekf.x[IDX_P + 2] - ekf.x[IDX_TERRAIN];
+    let ratio = ekf.test_ratio(
+        &dvec(&[h_meas - before]),
+        &hm,
+        &DMatrix::from_element(1, 1, r),
+        ctx.gate(1),
+    );
+    if ratio <= 1.0 {
+        return;
+    }
+    let terrain = ekf.x[IDX_P + 2] - h_meas;
+    ekf.reset_terrain(terrain, r);
+    core.event(
+        t,
+        "terrain_reset",
+        Some(source),
+        format!(
+            "{source}: terrain reset, height above it {before:.2} -> {h_meas:.2} m (the ground under the vehicle changed)"
+        ),
+        serde_json::json!({ "from_m": before, "to_m": h_meas, "test_ratio": ratio }),
+    );
+}
+
+/// Height above the terrain from a slant distance along the body's down axis, and its
+/// variance (the reading's, and the tilt error's: d·sinθ·σθ).
+fn height_of(core: &Core, slant: f64, var: f64) -> (f64, f64) {
+    let ct = cos_tilt(&core.att.q);
+    let tilt_var = (slant * (1.0 - ct * ct).max(0.0).sqrt()).powi(2) * core.att.cov[(0, 0)];
+    (slant * ct, var * ct * ct + tilt_var)
+}
+
 /// Fuse a slant distance along the body's down axis as height (flat terrain, z = 0).
 pub fn fuse_height(core: &mut Core, ctx: &Ctx, t: i64, source: &str, slant: f64, var: f64) {
-    let ct = cos_tilt(&core.att.q);
-    let h = slant * ct;
-    // Attitude error moves the tilt cosine: d·sinθ·σθ.
-    let tilt_var = (slant * (1.0 - ct * ct).max(0.0).sqrt()).powi(2) * core.att.cov[(0, 0)];
-    let r = var * ct * ct + tilt_var;
+    let (h, r) = height_of(core, slant, var);
     core.fuse_height(t, source, h, r, ctx);
 }
 
@@ -88,6 +169,13 @@ mod tests {
         };
         assert!(checks(&r, 0.2, 12.0).is_err());
         r.distance_m = 2.0;
+        assert!(checks(&r, 0.2, 12.0).is_ok());
+        r.signal_quality = Some(SIGNAL_INVALID);
+        assert_eq!(
+            checks(&r, 0.2, 12.0),
+            Err("the sensor flags the signal invalid")
+        );
+        r.signal_quality = Some(0); // unknown
         assert!(checks(&r, 0.2, 12.0).is_ok());
         r.orientation = Some(0);
         assert!(checks(&r, 0.2, 12.0).is_err());

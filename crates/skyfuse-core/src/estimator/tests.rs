@@ -2,10 +2,13 @@
 
 use super::*;
 use crate::geo::LocalEnu;
-use crate::sample::{GnssFix, Imu, Odometry};
+use crate::sample::{
+    Attitude, GnssFix, Imu, LandedState, Odometry, OpticalFlow, Range, VehicleState,
+};
 use crate::sim::sensors::DEMO_STREAMS;
 use crate::sim::truth::{truth, TruthState};
 use crate::sim::Simulator;
+use nalgebra::Vector2;
 
 fn sim_samples(seed: u64, duration_s: f64) -> (Vec<(Sample, TruthState)>, LocalEnu) {
     let sim = Simulator::new(DEMO_STREAMS, seed, duration_s);
@@ -637,5 +640,222 @@ fn diag_per_axis() {
     println!(
         "{}",
         serde_json::to_string_pretty(&st.sources).expect("json")
+    );
+}
+
+/// What a flow + range + attitude vehicle senses at one instant.
+struct Seen {
+    /// Tilt about body x, rad.
+    roll: f64,
+    /// Range reading, m.
+    range: f64,
+    /// Body velocity the flow sees (at the range's height), m/s.
+    vel: Vector2<f64>,
+    flow_quality: u8,
+}
+
+fn seen(roll: f64, range: f64, vel: Vector2<f64>) -> Seen {
+    Seen {
+        roll,
+        range,
+        vel,
+        flow_quality: 200,
+    }
+}
+
+/// A flow + range + attitude vehicle (no IMU) at 50 Hz, sensing `at(t)`; `state` the
+/// autopilot's word (5 Hz).
+fn flow_range_vehicle(
+    est: &mut Estimator,
+    from_us: i64,
+    to_us: i64,
+    at: impl Fn(i64) -> Seen,
+    state: Option<VehicleState>,
+) -> Vec<EstimatorEvent> {
+    let mut events = Vec::new();
+    let mut t = from_us;
+    while t <= to_us {
+        let Seen {
+            roll,
+            range: d,
+            vel: v,
+            flow_quality,
+        } = at(t);
+        let sample = |source: &str, data: SensorData| Sample {
+            source: Arc::from(source),
+            stamp_us: Some(t),
+            arrival_us: t,
+            data,
+        };
+        let q = UnitQuaternion::from_euler_angles(roll, 0.0, 0.0);
+        let mut batch = vec![
+            sample(
+                "attitude",
+                SensorData::Attitude(Attitude {
+                    orientation: q,
+                    rates: None,
+                }),
+            ),
+            sample(
+                "range",
+                SensorData::Range(Range {
+                    distance_m: d,
+                    min_m: Some(0.3),
+                    max_m: Some(40.0),
+                    signal_quality: None,
+                    variance: None,
+                    orientation: Some(25),
+                }),
+            ),
+            sample(
+                "flow",
+                SensorData::Flow(OpticalFlow {
+                    rate: Some(Vector2::new(v.y / d, -v.x / d)),
+                    gyro: Some(Vector3::zeros()),
+                    velocity: None,
+                    integration_s: Some(0.02),
+                    quality: flow_quality,
+                    status: None,
+                    tof: None,
+                }),
+            ),
+        ];
+        if let Some(s) = &state {
+            if t % 200_000 == 0 {
+                batch.push(sample("state", SensorData::VehicleState(s.clone())));
+            }
+        }
+        for s in &batch {
+            events.extend(est.process(s));
+        }
+        t += 20_000;
+    }
+    events
+}
+
+fn flow_range_cfg() -> EstimatorConfig {
+    EstimatorConfig {
+        mode: Mode::Ekf,
+        ..EstimatorConfig::default()
+    }
+}
+
+#[test]
+fn a_table_edge_below_moves_the_terrain_not_the_vehicle() {
+    // Hovering at 1.5 m; from 10 to 14 s a 1.2 m high table passes below (the range
+    // reads 0.3 m, a step no vehicle climbs), then the floor again.
+    let mut est = Estimator::new(flow_range_cfg());
+    let range = |t: i64| {
+        if (10_000_000..14_000_000).contains(&t) {
+            0.3 + 1e-3
+        } else {
+            1.5
+        }
+    };
+    let events = flow_range_vehicle(
+        &mut est,
+        0,
+        20_000_000,
+        |t| seen(0.0, range(t), Vector2::zeros()),
+        None,
+    );
+    let resets: Vec<_> = events
+        .iter()
+        .filter(|e| e.kind == "terrain_reset")
+        .collect();
+    assert_eq!(resets.len(), 2, "onto the table and off it: {resets:?}");
+    let p = est.pose().expect("pose");
+    assert!(p.valid, "{p:?}");
+    assert!(
+        (p.position.z - 1.5).abs() < 0.1,
+        "the vehicle stayed at 1.5 m: {}",
+        p.position
+    );
+    assert!(
+        !events.iter().any(|e| e.kind == "gate_reject"),
+        "no reading refused as disagreeing"
+    );
+}
+
+#[test]
+fn flow_and_range_held_on_the_side_are_not_used() {
+    // Standing at 0.5 m, then held on its side for 5 s (75° of roll): the range reads
+    // the far wall and the flow sees it slide by; neither is a ground measurement.
+    let mut est = Estimator::new(flow_range_cfg());
+    let side = |t: i64| (5_000_000..10_000_000).contains(&t);
+    let events = flow_range_vehicle(
+        &mut est,
+        0,
+        12_000_000,
+        |t| {
+            if side(t) {
+                seen(75f64.to_radians(), 4.0, Vector2::new(2.0, 0.0))
+            } else {
+                seen(0.0, 0.5, Vector2::zeros())
+            }
+        },
+        None,
+    );
+    let refused = |what: &str| {
+        events
+            .iter()
+            .any(|e| e.kind == "sample_rejected" && e.message.contains(what))
+    };
+    assert!(refused("tilt too large for the flow"));
+    assert!(refused("tilt too large for the range finder"));
+    let p = est.pose().expect("pose");
+    assert!(p.position.xy().norm() < 0.2, "no slide: {}", p.position);
+}
+
+#[test]
+fn a_vehicle_carried_while_disarmed_is_not_held_on_the_ground() {
+    // Disarmed and "landed" all along (a land detector does not see a carry). Lifted to
+    // 1 m and walked at 0.8 m/s along x for 5 s; for 3 s of it the flow's quality is
+    // too low to use. The ground constraint must not pin the vehicle then (zero
+    // velocity, held position): the track keeps its velocity through the gap. The
+    // estimate is invalid while carried, valid once set down.
+    let mut est = Estimator::new(flow_range_cfg());
+    let state = VehicleState {
+        armed: Some(false),
+        landed: Some(LandedState::OnGround),
+    };
+    let carried = |t: i64| (5_000_000..10_000_000).contains(&t);
+    let poor_flow = |t: i64| (6_500_000..9_500_000).contains(&t);
+    let mut valid_while_carried = Vec::new();
+    let mut t0 = 0;
+    for end in (1..=30).map(|i| i * 500_000) {
+        flow_range_vehicle(
+            &mut est,
+            t0,
+            end - 20_000,
+            |t| {
+                let mut s = if carried(t) {
+                    seen(0.0, 1.0, Vector2::new(0.8, 0.0))
+                } else {
+                    seen(0.0, 0.1, Vector2::zeros())
+                };
+                if poor_flow(t) {
+                    s.flow_quality = 10;
+                }
+                s
+            },
+            Some(state.clone()),
+        );
+        if carried(end) && end > 6_000_000 {
+            valid_while_carried.push(est.pose().is_some_and(|p| p.valid));
+        }
+        t0 = end;
+    }
+    assert!(!valid_while_carried.is_empty());
+    assert!(
+        valid_while_carried.iter().all(|v| !v),
+        "{valid_while_carried:?}"
+    );
+    let p = est.pose().expect("pose");
+    assert!(p.valid, "set down again: {p:?}");
+    assert!(
+        (p.position.x - 4.0).abs() < 0.5,
+        "carried 4 m, the track says {}",
+        p.position
     );
 }

@@ -7,12 +7,17 @@
 //! practice; thresholds are config keys (`[health]`), defaults are named constants.
 //!
 //! How a verdict forms: each check that fails raises a *condition* (code, severity,
-//! text) with the time it was last seen. A condition is active while it was seen within
-//! its hold time. The sensor's raw state is the worst active condition (or `stale`
-//! without data). A worse raw state is adopted once it has lasted `confirm_ms`; a better
-//! one only after `recover_ms` — a recovered sensor is taken back only after it has been
-//! good for that long — except out of `stale`/`no_data`: data that is back is judged
-//! by the checks from its first sample.
+//! text) with the times it was first and last seen in its current run. A condition is
+//! active while it was seen within its hold time (`hold_ms`, at least 2.5 expected
+//! sample periods, so a slow sensor's run does not break between samples). It counts
+//! once it has been seen over `confirm_ms` (a lone bad sample, a momentary dip of flow
+//! quality, is the estimator's to drop sample by sample, not a reason to take the
+//! sensor out for `recover_ms`), or while the sensor is already that bad, or at once
+//! if one sample shows it in full ([`STEP_CODES`]: a jump, a reset). The sensor's
+//! raw state is the worst counting condition (or `stale` without data), adopted at
+//! once when worse; a better one only after `recover_ms` — a recovered sensor is taken
+//! back only after it has been good for that long — except out of `stale`/`no_data`:
+//! data that is back is judged by the checks from its first sample.
 
 mod checks;
 
@@ -75,7 +80,7 @@ pub struct Reason {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct HealthConfig {
-    /// A worse state is adopted after it has lasted this long, ms.
+    /// A condition counts (makes the state worse) once seen over this long, ms.
     pub confirm_ms: f64,
     /// A better state is adopted (a sensor taken back) after this long, ms; leaving
     /// `stale` or `no_data` needs no wait.
@@ -126,6 +131,9 @@ pub struct HealthConfig {
 pub const DEFAULT_CONFIRM_MS: f64 = 300.0;
 pub const DEFAULT_RECOVER_MS: f64 = 3000.0;
 pub const DEFAULT_HOLD_MS: f64 = 500.0;
+/// Conditions a single sample shows in full (a jump, a reset, a divergence): they count
+/// at once, held for `hold_ms`, instead of waiting to be seen over `confirm_ms`.
+const STEP_CODES: [&str; 4] = ["gnss_jump", "vo_jump", "vo_reset", "diverged"];
 pub const DEFAULT_STALE_PERIODS: f64 = 5.0;
 pub const DEFAULT_STALE_MIN_MS: f64 = 250.0;
 pub const DEFAULT_RATE_LOW_FRACTION: f64 = 0.5;
@@ -208,6 +216,8 @@ impl HealthConfig {
 struct Condition {
     state: HealthState,
     text: String,
+    /// First and last time seen in this run (a run ends when the hold lapses).
+    first_us: i64,
     last_us: i64,
 }
 
@@ -555,6 +565,7 @@ impl SensorHealth {
         let c = self.conditions.entry(o.code).or_insert(Condition {
             state: o.state,
             text: o.text.clone(),
+            first_us: t,
             last_us: t,
         });
         c.last_us = t;
@@ -574,7 +585,11 @@ impl SensorHealth {
         if self.disabled {
             return (HealthState::Disabled, vec![]);
         }
-        let hold = (cfg.hold_ms * 1e3) as i64;
+        let mut hold = cfg.hold_ms * 1e3;
+        if self.expected_rate_hz > 0.0 {
+            hold = hold.max(2.5e6 / self.expected_rate_hz);
+        }
+        let hold = hold as i64;
         self.conditions.retain(|_, c| t - c.last_us <= hold);
         let Some(last) = self.last_sample_us else {
             // Nothing usable yet: if everything so far was rejected, say why.
@@ -606,23 +621,42 @@ impl SensorHealth {
                 || self.arrivals.len() as f64 >= self.expected_rate_hz * 1.5;
             let rate = self.rate_hz(t);
             if window_full && rate < cfg.rate_low_fraction * self.expected_rate_hz {
-                self.conditions.insert(
-                    "rate_low",
-                    Condition {
+                let text = format!("{rate:.1} Hz, expected {:.0} Hz", self.expected_rate_hz);
+                self.raise(
+                    Observation {
+                        code: "rate_low",
                         state: HealthState::Degraded,
-                        text: format!("{rate:.1} Hz, expected {:.0} Hz", self.expected_rate_hz),
-                        last_us: t,
+                        text,
                     },
+                    t,
                 );
             }
         }
-        let worst = self
+        let confirm = (cfg.confirm_ms * 1e3) as i64;
+        let state = self.state;
+        let counting: Vec<(&'static str, &Condition)> = self
             .conditions
-            .values()
-            .map(|c| c.state)
+            .iter()
+            .filter(|(code, c)| {
+                STEP_CODES.contains(code)
+                    || c.last_us - c.first_us >= confirm
+                    || c.state.rank() <= state.rank()
+            })
+            .map(|(code, c)| (*code, c))
+            .collect();
+        let worst = counting
+            .iter()
+            .map(|(_, c)| c.state)
             .max_by_key(|s| s.rank())
             .unwrap_or(HealthState::Ok);
-        (worst, self.condition_reasons())
+        let reasons = counting
+            .iter()
+            .map(|(code, c)| Reason {
+                code,
+                text: c.text.clone(),
+            })
+            .collect();
+        (worst, reasons)
     }
 
     fn condition_reasons(&self) -> Vec<Reason> {
@@ -652,15 +686,12 @@ impl SensorHealth {
         // Leaving no_data/stale needs no wait: data is back, and what it shows is judged
         // by the checks from its first sample (a link that came back after a Zenoh
         // router restart must not hold every sensor out for `recover_ms`). Going worse
-        // waits `confirm_ms`, getting better waits `recover_ms`.
-        let wait_ms = if matches!(self.state, HealthState::NoData | HealthState::Stale) {
+        // needs no wait either (a condition counts only once seen over `confirm_ms`);
+        // getting better waits `recover_ms`.
+        let wait_ms = if matches!(self.state, HealthState::NoData | HealthState::Stale)
+            || raw.rank() > self.state.rank()
+        {
             0.0
-        } else if raw.rank() > self.state.rank() {
-            if matches!(raw, HealthState::Stale | HealthState::Disabled) {
-                0.0
-            } else {
-                cfg.confirm_ms
-            }
         } else {
             cfg.recover_ms
         };

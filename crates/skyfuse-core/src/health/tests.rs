@@ -216,7 +216,7 @@ fn gnss_jump_is_caught() {
     let tr = run(&mut m, "gps", 3000, 4000, 100, |t| {
         fix(if t >= 3000 { 12.0 } else { 0.0 }, GnssFixType::Fix3d)
     });
-    // One jump sample keeps the condition for the hold time, longer than confirm.
+    // One jump sample is the whole story: it counts at once, held for the hold time.
     assert_eq!(
         tr.first().map(|t| t.reasons[0].code),
         Some("gnss_jump"),
@@ -238,4 +238,28 @@ fn rejected_samples_fail_the_sensor() {
     let s = m.sensor("gps").expect("gps");
     assert_eq!(s.state, HealthState::Failed);
     assert_eq!(s.reasons[0].code, "invalid_value");
+}
+
+#[test]
+fn a_lone_bad_sample_does_not_take_a_sensor_out() {
+    // One flow sample of low quality in a run of good ones: the estimator drops it;
+    // the sensor stays usable (it used to be failed, then out for recover_ms). The same
+    // quality low for 0.5 s does take it out.
+    let mut m = monitor();
+    let q = |t: i64, bad: &dyn Fn(i64) -> bool| if bad(t) { 10 } else { 200 };
+    let lone = |t: i64| t == 3000;
+    let tr = run(&mut m, "flow", 0, 5000, 20, |t| flow(q(t, &lone), 1.0));
+    assert!(
+        !tr.iter()
+            .any(|t| t.sensor == "flow" && t.to == HealthState::Failed),
+        "{tr:?}"
+    );
+    assert!(m.usable("flow"));
+    let long = |t: i64| (6000..6500).contains(&t);
+    let tr = run(&mut m, "flow", 5000, 7000, 20, |t| flow(q(t, &long), 1.0));
+    assert!(
+        tr.iter()
+            .any(|t| t.sensor == "flow" && t.to == HealthState::Failed),
+        "{tr:?}"
+    );
 }

@@ -18,8 +18,9 @@
 //!
 //! Instance `i` > 0 gets `_i` (`optical_flow_1` → `flow_1`). Stand-ins, used only where
 //! the real topic is absent and listed in [`Px4Log::stand_ins`]: `vehicle_imu` as `imu`
-//! without `sensor_combined`; EKF2's heading (`vehicle_local_position`, yaw only) as
-//! `attitude` without `vehicle_attitude`; EKF2's flow gyro (`estimator_optical_flow_vel`)
+//! without `sensor_combined`; EKF2's heading (`vehicle_local_position`) tilted as its
+//! nearest quaternion (`estimator_states`, which it then replaces) as `attitude` without
+//! `vehicle_attitude`; EKF2's flow gyro (`estimator_optical_flow_vel`)
 //! for flow samples without a gyro. A topic of the wanted set that is absent is listed
 //! in [`Px4Log::missing`], not fatal. The barometer (`vehicle_air_data`) is not read:
 //! the estimator has no barometer input.
@@ -36,6 +37,7 @@
 //! cannot be read, a header without a column we need, or a log with none of the topics
 //! above fails the whole read.
 
+use crate::estimator::attitude::yaw_of;
 use crate::sample::{
     frames, Attitude, AutopilotEstimate, GnssFix, GnssFixType, Imu, LandedState, Micros, Odometry,
     OpticalFlow, Range, Sample, SensorData, Tof, VehicleState,
@@ -208,7 +210,7 @@ fn read_topics(
     }
     if !has("vehicle_attitude") && attitude_from_ekf2_heading(&mut samples) > 0 {
         stand_ins.push(
-            "attitude: EKF2's heading (vehicle_local_position, yaw only, level) stands in for vehicle_attitude (absent)"
+            "attitude: EKF2's heading (vehicle_local_position) tilted as EKF2's quaternion (estimator_states, logged at a low rate) stands in for vehicle_attitude (absent)"
                 .to_string(),
         );
     }
@@ -286,20 +288,46 @@ fn nearest(rows: &[(i64, Vector3<f64>)], t: i64) -> Option<(i64, Vector3<f64>)> 
 }
 
 /// Without `vehicle_attitude` (this export logs only EKF2's 1 Hz quaternion), EKF2's
-/// heading (`vehicle_local_position`, 10 Hz) stands in as source `attitude`: yaw only,
-/// level. Returns how many samples it made.
+/// heading (`vehicle_local_position`, 10 Hz) stands in as source `attitude`, tilted as
+/// the nearest EKF2 quaternion (`attitude_states`, within [`TILT_NEAREST_US`]) says, or
+/// level when there is none. A level stand-in would be a lie while the vehicle is
+/// tilted (held on its side, the range finder then reads the far wall). The
+/// `attitude_states` rows it was built from are then dropped: one attitude source, not
+/// two disagreeing at different rates. Returns how many samples it made.
 fn attitude_from_ekf2_heading(samples: &mut Vec<Sample>) -> usize {
+    let tilts: Vec<(i64, UnitQuaternion<f64>)> = samples
+        .iter()
+        .filter(|s| s.source.as_ref() == "attitude_states")
+        .filter_map(|s| match (&s.data, s.stamp_us) {
+            (SensorData::Attitude(a), Some(t)) => Some((t, a.orientation)),
+            _ => None,
+        })
+        .collect();
+    let tilt_at = |t: i64| -> UnitQuaternion<f64> {
+        let i = tilts.partition_point(|r| r.0 < t);
+        let near = [i.checked_sub(1), Some(i)]
+            .into_iter()
+            .flatten()
+            .filter_map(|j| tilts.get(j))
+            .filter(|r| (r.0 - t).abs() <= TILT_NEAREST_US)
+            .min_by_key(|r| (r.0 - t).abs());
+        // The quaternion without its heading: body → a level frame of the same yaw.
+        near.map_or_else(UnitQuaternion::identity, |(_, q)| {
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -yaw_of(q)) * q
+        })
+    };
     let mut extra = Vec::new();
-    for s in samples.iter_mut() {
+    for s in samples.iter() {
         match &s.data {
             SensorData::AutopilotEstimate(a) if s.source.as_ref() == "ekf2" => {
-                if let Some(yaw) = a.yaw.filter(|y| y.is_finite()) {
+                if let (Some(yaw), Some(t)) = (a.yaw.filter(|y| y.is_finite()), s.stamp_us) {
                     extra.push(Sample {
                         source: "attitude".into(),
                         stamp_us: s.stamp_us,
                         arrival_us: s.arrival_us,
                         data: SensorData::Attitude(crate::sample::Attitude {
-                            orientation: UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+                            orientation: UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
+                                * tilt_at(t),
                             rates: None,
                         }),
                     });
@@ -309,6 +337,9 @@ fn attitude_from_ekf2_heading(samples: &mut Vec<Sample>) -> usize {
         }
     }
     let n = extra.len();
+    if n > 0 {
+        samples.retain(|s| s.source.as_ref() != "attitude_states");
+    }
     samples.extend(extra);
     samples.sort_by_key(|s| s.stamp_us);
     n
@@ -403,6 +434,9 @@ const WANTED: [(&str, &[&str]); 7] = [
 
 /// Internal source of EKF2's flow gyro rows, attached to the flow samples and dropped.
 const EKF2_FLOW_GYRO: &str = "ekf2_flow_gyro";
+/// The attitude stand-in takes its tilt from an EKF2 quaternion at most this far away,
+/// µs (estimator_states is logged at about 1 Hz).
+const TILT_NEAREST_US: i64 = 1_000_000;
 
 /// One topic instance to read: a CSV file, or a ULog topic already in memory.
 struct TopicFile {
@@ -1659,9 +1693,14 @@ mod tests {
         assert_eq!(got, want);
         let total: usize = log.topics.iter().map(TopicSummary::samples).sum();
         assert_eq!(total, 72528 + 616 + 311 + 17683);
-        // EKF2's flow gyro rows go into the flow samples; plus one `attitude` per EKF2
-        // heading (vehicle_local_position rows), the stand-in for vehicle_attitude.
-        assert_eq!(log.samples.len(), total - 17683 + 3077);
+        // EKF2's flow gyro rows go into the flow samples; one `attitude` per EKF2
+        // heading (vehicle_local_position rows), the stand-in for vehicle_attitude,
+        // replaces the 308 EKF2 quaternions it takes its tilt from.
+        assert_eq!(log.samples.len(), total - 17683 + 3077 - 308);
+        assert!(!log
+            .samples
+            .iter()
+            .any(|s| s.source.as_ref() == "attitude_states"));
         assert!(log.samples.iter().any(|s| s.source.as_ref() == "imu"));
         assert_eq!(log.stand_ins.len(), 3, "{:?}", log.stand_ins);
         let missing: Vec<&str> = log
@@ -1856,10 +1895,26 @@ mod tests {
         assert_eq!((r.min_m, r.max_m), (None, None));
     }
 
+    /// EKF2's quaternions of the real log as read, before the stand-in replaces them.
+    fn real_quaternions() -> &'static Px4Log {
+        static RAW: std::sync::OnceLock<Px4Log> = std::sync::OnceLock::new();
+        RAW.get_or_init(|| {
+            let dir = TempDir::new("quaternions");
+            let name = "estimator_states_0.csv.gz";
+            if let Err(e) = std::fs::copy(Path::new(DATA_DIR).join(name), dir.0.join(name)) {
+                panic!("copying {name}: {e}");
+            }
+            match read_dir(&dir.0) {
+                Ok(log) => log,
+                Err(e) => panic!("reading {name}: {e}"),
+            }
+        })
+    }
+
     #[test]
     fn attitude_and_ekf2_heading_agree() {
         let log = real();
-        let s = first_of(log, "attitude_states");
+        let s = first_of(real_quaternions(), "attitude_states");
         assert_eq!(s.stamp_us, Some(1_692_866));
         let SensorData::Attitude(a) = &s.data else {
             panic!("not attitude")
@@ -1881,12 +1936,57 @@ mod tests {
         assert!(close(yaw, frames::yaw_ned_to_enu(0.27689523), 1e-9));
         // EKF2's quaternion and its heading name the same yaw (0.277 rad NED).
         assert!(close(a.orientation.euler_angles().2, yaw, 0.01), "{yaw}");
-        // The 10 Hz `attitude` stand-in is that heading, level.
-        let SensorData::Attitude(h) = &first_of(log, "attitude").data else {
+        // The 10 Hz `attitude` stand-in is that heading, tilted as the quaternion
+        // nearest in time.
+        let stand_in = first_of(log, "attitude");
+        let SensorData::Attitude(h) = &stand_in.data else {
             panic!("not attitude")
         };
-        assert!(close(h.orientation.euler_angles().2, yaw, 1e-9));
-        assert!(h.orientation.euler_angles().0.abs() < 1e-12);
+        assert!(close(yaw_of(&h.orientation), yaw, 1e-9));
+        let t = stand_in.stamp_us.unwrap_or_default();
+        let nearest = real_quaternions()
+            .samples
+            .iter()
+            .min_by_key(|s| (s.stamp_us.unwrap_or_default() - t).abs())
+            .map(|s| &s.data);
+        let Some(SensorData::Attitude(q)) = nearest else {
+            panic!("no quaternion")
+        };
+        let level = |q: &UnitQuaternion<f64>| {
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -yaw_of(q)) * q
+        };
+        assert!(level(&h.orientation).angle_to(&level(&q.orientation)) < 1e-9);
+        assert!(level(&h.orientation).angle() > 1e-3, "tilted, not level");
+    }
+
+    #[test]
+    fn the_attitude_stand_in_is_tilted_when_the_vehicle_is() {
+        // 54–64 s of the log the vehicle is held on its side (EKF2's quaternion: 75–78°
+        // of tilt; the range finder reads the far wall, 2.6–4.3 m). A level stand-in
+        // would let those readings through as heights.
+        let tilt = |s: &Sample| match &s.data {
+            SensorData::Attitude(a) => (a.orientation * Vector3::z()).angle(&Vector3::z()),
+            _ => f64::NAN,
+        };
+        let held: Vec<f64> = real()
+            .samples
+            .iter()
+            .filter(|s| s.source.as_ref() == "attitude")
+            .filter(|s| {
+                s.stamp_us
+                    .is_some_and(|t| (56_000_000..63_000_000).contains(&t))
+            })
+            .map(tilt)
+            .collect();
+        assert!(held.len() > 60, "{}", held.len());
+        assert!(held.iter().all(|t| t.to_degrees() > 70.0), "{held:?}");
+        let before = real()
+            .samples
+            .iter()
+            .filter(|s| s.source.as_ref() == "attitude")
+            .find(|s| s.stamp_us.is_some_and(|t| t > 40_000_000))
+            .map(tilt);
+        assert!(before.is_some_and(|t| t.to_degrees() < 3.0), "{before:?}");
     }
 
     #[test]
