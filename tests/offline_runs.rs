@@ -138,7 +138,10 @@ fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
         .airborne_valid_fraction
         .expect("airborne known");
     assert!(air > 0.97, "{:?}", s.availability);
-    let gap = s.availability.airborne_longest_invalid_s.expect("airborne known");
+    let gap = s
+        .availability
+        .airborne_longest_invalid_s
+        .expect("airborne known");
     assert!(gap < 1.0, "{:?}", s.availability);
     assert!(a.join("vio.tum").exists() && a.join("ekf2.tum").exists());
 }

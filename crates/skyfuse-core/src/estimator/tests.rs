@@ -722,7 +722,7 @@ fn flow_range_vehicle(
         ];
         if let Some(s) = &state {
             if t % 200_000 == 0 {
-                batch.push(sample("state", SensorData::VehicleState(s.clone())));
+                batch.push(sample("state", SensorData::VehicleState(*s)));
             }
         }
         for s in &batch {
@@ -839,7 +839,7 @@ fn a_vehicle_carried_while_disarmed_is_not_held_on_the_ground() {
                 }
                 s
             },
-            Some(state.clone()),
+            Some(state),
         );
         if carried(end) && end > 6_000_000 {
             valid_while_carried.push(est.pose().is_some_and(|p| p.valid));
