@@ -6,6 +6,7 @@
 
 use crate::clock::now_us;
 use crate::config::Config;
+use crate::event::Event;
 pub use crate::http::AppState;
 use crate::hub::{FrameKind, Hub};
 use crate::ingest::{zenoh_in, Ingest};
@@ -266,7 +267,7 @@ async fn watch_zenoh_links(state: Arc<AppState>, session: zenoh::Session) {
             tracing::warn!("{message}");
             message
         };
-        state.publish_service_event("zenoh_link", None, &message);
+        state.publish_service_event(Event::ZenohLink, None, &message);
     }
 }
 

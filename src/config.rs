@@ -275,9 +275,9 @@ impl OutputConfig {
         }
         let mut v = vec![(self.ros2_pose_key.clone(), "geometry_msgs/msg/PoseStamped")];
         if self.ros2_debug {
-            for t in crate::estimator::DEBUG_TOPICS {
+            for t in crate::estimator::DebugTopic::PUBLISHED {
                 v.push((
-                    format!("{}/{t}", self.ros2_debug_prefix),
+                    format!("{}/{}", self.ros2_debug_prefix, t.name()),
                     "geometry_msgs/msg/PointStamped",
                 ));
             }

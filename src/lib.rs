@@ -23,7 +23,7 @@
 //! - [`cli`]: the command line; `main.rs` only calls [`cli::main`].
 
 pub use skyfuse_core::{
-    codec, estimator, eval, fusion, geo, health, offline, replay, sample, sync,
+    codec, estimator, eval, event, fusion, geo, health, offline, replay, sample, sync,
 };
 
 pub mod app;

@@ -4,10 +4,11 @@
 //! the HTTP API. Controls arrive as [`Command`]s.
 
 use crate::estimator::{
-    DebugSeries, Estimator, EstimatorConfig, EstimatorEvent, EstimatorStatus, FusedPose,
+    DebugSeries, DebugTopic, Estimator, EstimatorConfig, EstimatorEvent, EstimatorStatus, Event,
+    FusedPose,
 };
 use crate::fusion::{Fusion, InputList};
-use crate::health::HealthConfig;
+use crate::health::{HealthConfig, HealthState, Reason};
 use crate::hub::{FrameKind, Hub};
 use crate::ingest::Ingest;
 use crate::sample::{Micros, Sample};
@@ -30,10 +31,10 @@ pub enum Command {
 /// What the estimator task shares with the rest of the service.
 pub struct PipelineShared {
     pub hub: Arc<Hub>,
-    /// Latest estimator status (JSON of [`crate::estimator::EstimatorStatus`]).
-    pub status: Mutex<Value>,
-    /// Latest health verdict per sensor (see [`health_json`]).
-    pub health: Mutex<Value>,
+    /// Latest estimator status (`None` before the task's first refresh).
+    pub status: Mutex<Option<EstimatorStatus>>,
+    /// Latest health verdict per sensor.
+    pub health: Mutex<BTreeMap<String, SensorVerdict>>,
     pub consumed: AtomicU64,
     pub events: AtomicU64,
     /// Host time of service start: `t` in dashboard frames counts from here.
@@ -49,8 +50,8 @@ impl PipelineShared {
     pub fn new(hub: Arc<Hub>, started_us: Micros) -> Self {
         Self {
             hub,
-            status: Mutex::new(Value::Null),
-            health: Mutex::new(Value::Null),
+            status: Mutex::new(None),
+            health: Mutex::new(BTreeMap::new()),
             consumed: AtomicU64::new(0),
             events: AtomicU64::new(0),
             started_us,
@@ -58,13 +59,30 @@ impl PipelineShared {
         }
     }
 
+    /// `/api/v1/status`'s `estimator` (null before the first refresh).
     pub fn status_json(&self) -> Value {
-        crate::sync::lock(&self.status).clone()
+        serde_json::to_value(&*crate::sync::lock(&self.status)).unwrap_or(Value::Null)
     }
 
-    pub fn health_json(&self) -> Value {
+    pub fn health(&self) -> BTreeMap<String, SensorVerdict> {
         crate::sync::lock(&self.health).clone()
     }
+}
+
+/// The health layer's verdict on one sensor, as `/api/v1/status` shows it beside the
+/// sensor's ingest counters.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SensorVerdict {
+    pub state: HealthState,
+    pub reasons: Vec<Reason>,
+    /// Time in this state, ms.
+    pub since_ms: Option<f64>,
+    /// Innovation test ratio of the last update (null if never fused).
+    pub test_ratio: Option<f64>,
+    /// Fused within the aiding timeout.
+    pub used: bool,
+    /// The health layer lets the estimator use it.
+    pub usable: bool,
 }
 
 pub type PoseSender = watch::Sender<Option<Arc<FusedPose>>>;
@@ -79,17 +97,8 @@ pub type CommandReceiver = mpsc::Receiver<(Command, oneshot::Sender<Vec<Estimato
 pub struct TickBuilder {
     last_tick_us: Option<i64>,
     /// Newest point already sent per (topic, source).
-    sent: BTreeMap<(&'static str, String), i64>,
+    sent: BTreeMap<(DebugTopic, String), i64>,
 }
-
-/// Debug topics that hold an accumulated position per source, and their deltas.
-const POSITION_TOPICS: [&str; 3] = ["oriUAV_gps", "oriUAV_t265", "OF_sum"];
-const DELTA_TOPICS: [&str; 4] = [
-    "origin_dgps",
-    "origin_dt265",
-    "origin_dOF",
-    "fusion_displace",
-];
 
 impl TickBuilder {
     /// A tick if one is due at estimator time `t`.
@@ -101,8 +110,8 @@ impl TickBuilder {
         }
         self.last_tick_us = Some(t);
         let debug = &est.debug().series;
-        let mut fresh = |topic: &'static str| -> Option<(&str, [f64; 3])> {
-            let p = debug.get(topic)?;
+        let mut fresh = |topic: DebugTopic| -> Option<(&str, [f64; 3])> {
+            let p = debug.get(&topic)?;
             let key = (topic, p.source.clone());
             if self.sent.get(&key).is_some_and(|&s| s >= p.time_us) {
                 return None;
@@ -111,15 +120,15 @@ impl TickBuilder {
             Some((p.source.as_str(), p.value))
         };
         let mut sources = serde_json::Map::new();
-        for topic in POSITION_TOPICS {
+        for topic in DebugTopic::POSITIONS {
             if let Some((src, v)) = fresh(topic) {
                 sources.insert(src.to_string(), json!(v));
             }
         }
         let mut deltas = serde_json::Map::new();
-        for topic in DELTA_TOPICS {
+        for topic in DebugTopic::DELTAS {
             if let Some((src, v)) = fresh(topic) {
-                let name = if topic == "fusion_displace" {
+                let name = if topic == DebugTopic::FusionDisplace {
                     "fused"
                 } else {
                     src
@@ -128,9 +137,9 @@ impl TickBuilder {
             }
         }
         let flow = match (
-            fresh("OF_data"),
-            fresh("flow_gyro"),
-            fresh("compensated_OF"),
+            fresh(DebugTopic::OfData),
+            fresh(DebugTopic::FlowGyro),
+            fresh(DebugTopic::CompensatedOf),
         ) {
             (Some((_, raw)), Some((_, gyro)), Some((_, comp))) => json!({
                 "raw": [raw[0], raw[1]],
@@ -139,7 +148,7 @@ impl TickBuilder {
             }),
             _ => Value::Null,
         };
-        let pose = est.pose().map(|p| pose_json(&p));
+        let pose = est.pose().map(|p| TickPose::of(&p));
         Some(json!({
             "type": "tick",
             "t": (t - started_us) as f64 / 1e6,
@@ -156,34 +165,54 @@ fn round(v: f64, digits: i32) -> f64 {
     (v * k).round() / k
 }
 
-/// The pose as the dashboard shows it.
-pub fn pose_json(p: &FusedPose) -> Value {
-    let d = p.position_cov.diagonal();
-    json!({
-        "x": round(p.position.x, 4), "y": round(p.position.y, 4), "z": round(p.position.z, 4),
-        "yaw": round(p.orientation.euler_angles().2, 4),
-        "vx": round(p.velocity.x, 3), "vy": round(p.velocity.y, 3), "vz": round(p.velocity.z, 3),
-        "valid": p.valid,
-        "invalid_reason": p.invalid_reason,
-        "reset_counter": p.reset_counter,
-        "std": [round(d.x.sqrt(), 4), round(d.y.sqrt(), 4), round(d.z.sqrt(), 4)],
-        "sources": p.sources,
-    })
+/// `tick.pose` (web/PROTOCOL.md): the fused pose as the dashboard plots it, rounded to
+/// what a plot shows (0.1 mm, 1 mm/s).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct TickPose {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+    /// ENU heading, rad (0 = east, counter-clockwise).
+    pub yaw: f64,
+    pub vx: f64,
+    pub vy: f64,
+    pub vz: f64,
+    pub valid: bool,
+    pub invalid_reason: Option<String>,
+    pub reset_counter: u8,
+    /// Position σ per axis, m.
+    pub std: [f64; 3],
+    pub sources: Vec<String>,
+}
+
+impl TickPose {
+    pub fn of(p: &FusedPose) -> Self {
+        let d = p.position_cov.diagonal();
+        Self {
+            x: round(p.position.x, 4),
+            y: round(p.position.y, 4),
+            z: round(p.position.z, 4),
+            yaw: round(p.orientation.euler_angles().2, 4),
+            vx: round(p.velocity.x, 3),
+            vy: round(p.velocity.y, 3),
+            vz: round(p.velocity.z, 3),
+            valid: p.valid,
+            invalid_reason: p.invalid_reason.clone(),
+            reset_counter: p.reset_counter,
+            std: [
+                round(d.x.sqrt(), 4),
+                round(d.y.sqrt(), 4),
+                round(d.z.sqrt(), 4),
+            ],
+            sources: p.sources.clone(),
+        }
+    }
 }
 
 /// An estimator event as the hub and logs carry it.
 pub fn event_frame(e: &EstimatorEvent, started_us: Micros) -> Value {
-    json!({
-        "type": "event",
-        "event": {
-            "time_us": e.time_us,
-            "t": (e.time_us - started_us) as f64 / 1e6,
-            "kind": e.kind,
-            "source": e.source,
-            "message": e.message,
-            "data": e.data,
-        }
-    })
+    let t = (e.time_us - started_us) as f64 / 1e6;
+    json!({ "type": "event", "event": e.to_json(t, true) })
 }
 
 /// Everything the estimator task is built from.
@@ -251,13 +280,15 @@ pub async fn run(
                     if st.clock_restarts > *seen {
                         *seen = st.clock_restarts;
                         let text = st.last_clock_restart.clone().unwrap_or_default();
-                        publish_events(&shared, &[EstimatorEvent {
-                            time_us: now,
-                            kind: "clock_restart",
-                            source: Some(st.id.clone()),
-                            message: format!("{}: {text}", st.id),
-                            data: json!({ "clock_restarts": st.clock_restarts }),
-                        }]);
+                        let event = EstimatorEvent::new(
+                            now,
+                            Some(&st.id),
+                            format!("{}: {text}", st.id),
+                            Event::ClockRestart {
+                                clock_restarts: st.clock_restarts,
+                            },
+                        );
+                        publish_events(&shared, &[event]);
                     }
                 }
                 let events = fusion.tick(now);
@@ -282,30 +313,36 @@ pub async fn run(
 }
 
 /// Each sensor's health as the status API shows it.
-pub fn health_json(fusion: &Fusion, st: &EstimatorStatus, now: i64) -> Value {
-    let mut out = serde_json::Map::new();
-    for h in fusion.health.sensors() {
-        let src = st.sources.get(&h.id);
-        out.insert(
-            h.id.clone(),
-            json!({
-                "state": h.state,
-                "reasons": h.reasons,
-                "since_ms": h.since_us.map(|s| (now - s) as f64 / 1e3),
-                "test_ratio": src.filter(|s| !s.innovation.is_empty()).map(|s| s.test_ratio),
-                "used": st.sources_used.contains(&h.id),
-                "usable": h.state.usable(),
-            }),
-        );
-    }
-    Value::Object(out)
+/// The verdict on every sensor the health layer knows.
+pub fn verdicts(
+    fusion: &Fusion,
+    st: &EstimatorStatus,
+    now: i64,
+) -> BTreeMap<String, SensorVerdict> {
+    fusion
+        .health
+        .sensors()
+        .map(|h| {
+            let src = st.sources.get(&h.id);
+            let v = SensorVerdict {
+                state: h.state,
+                reasons: h.reasons.clone(),
+                since_ms: h.since_us.map(|s| (now - s) as f64 / 1e3),
+                test_ratio: src
+                    .filter(|s| !s.innovation.is_empty())
+                    .map(|s| s.test_ratio),
+                used: st.sources_used.contains(&h.id),
+                usable: h.state.usable(),
+            };
+            (h.id.clone(), v)
+        })
+        .collect()
 }
 
 fn refresh_status(shared: &PipelineShared, fusion: &Fusion) {
     let st = fusion.est.state_summary();
-    let h = health_json(fusion, &st, crate::clock::now_us());
-    let v = serde_json::to_value(st).unwrap_or(Value::Null);
-    *crate::sync::lock(&shared.status) = v;
+    let h = verdicts(fusion, &st, crate::clock::now_us());
+    *crate::sync::lock(&shared.status) = Some(st);
     *crate::sync::lock(&shared.health) = h;
 }
 
@@ -314,7 +351,7 @@ pub fn publish_events(shared: &PipelineShared, events: &[EstimatorEvent]) {
     for e in events {
         shared.events.fetch_add(1, Relaxed);
         tracing::info!(
-            kind = e.kind,
+            kind = e.kind(),
             source = e.source.as_deref().unwrap_or("-"),
             "{}",
             e.message

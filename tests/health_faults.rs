@@ -5,6 +5,7 @@
 //! back after it recovers. Nominal flights of 30 simulated minutes raise no fault.
 
 use skyfuse::estimator::EstimatorConfig;
+use skyfuse::event::Event;
 use skyfuse::fusion::{Fusion, InputList, InputSpec};
 use skyfuse::health::HealthConfig;
 use skyfuse::sample::Sample;
@@ -28,22 +29,14 @@ fn health_transitions(
 ) -> Vec<(f64, String, String, Vec<String>)> {
     events
         .iter()
-        .filter(|e| e.kind == "health")
-        .map(|e| {
-            let codes = e.data["reasons"]
-                .as_array()
-                .map(|a| {
-                    a.iter()
-                        .filter_map(|r| r["code"].as_str().map(String::from))
-                        .collect()
-                })
-                .unwrap_or_default();
-            (
+        .filter_map(|e| match &e.what {
+            Event::Health { to, reasons, .. } => Some((
                 e.time_us as f64 * 1e-6,
                 e.source.clone().unwrap_or_default(),
-                e.data["to"].as_str().unwrap_or_default().to_string(),
-                codes,
-            )
+                to.as_str().to_string(),
+                reasons.iter().map(|r| r.code.to_string()).collect(),
+            )),
+            _ => None,
         })
         .collect()
 }

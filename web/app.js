@@ -724,12 +724,21 @@
   }
 
   // ------------------------------------------------------------------ events
-  const KINDS = { health: 'health', source_switch: 'switch', reset: 'reset', monitor: 'monitor', calibration: 'calib.',
-    fault_injected: 'fault', control: 'control', info: 'info' };
+  // Event kinds (web/PROTOCOL.md) → [label, colour class]; an unknown kind shows as info.
+  const KINDS = {
+    health: ['health', 'health'], source_usable: ['usable', 'health'], clock_restart: ['clock', 'health'],
+    source_switch: ['switch', 'source_switch'], segment: ['segment', 'source_switch'],
+    reset: ['reset', 'reset'], terrain_reset: ['terrain', 'reset'], origin_set: ['origin', 'reset'],
+    monitor_reset: ['monitor', 'monitor'], handled: ['handled', 'monitor'], constraint: ['constraint', 'monitor'],
+    calibration_started: ['calib.', 'calibration'], calibration_result: ['calib.', 'calibration'],
+    fault_injected: ['fault', 'fault_injected'], fault_cleared: ['fault', 'fault_injected'],
+    zenoh_link: ['zenoh', 'control'], initialised: ['init', 'info'], sample_rejected: ['rejected', 'info'],
+    gate_reject: ['gate', 'info'], late_drop: ['late', 'info'], info: ['info', 'info'],
+  };
   function eventEl(ev) {
-    const kind = KINDS[ev.kind] ? ev.kind : 'info';
-    const li = h('li', `ev k-${kind}`);
-    const k = h('span', 'ev-kind', KINDS[kind]);
+    const [label, cls] = KINDS[ev.kind] || KINDS.info;
+    const li = h('li', `ev k-${cls}`);
+    const k = h('span', 'ev-kind', label);
     k.title = ev.kind || 'info';
     li.append(h('span', 'ev-t mono', isNum(ev.t) ? ev.t.toFixed(1) : ''), k,
       h('span', 'ev-msg', ev.message || (ev.source ? `${ev.source}` : '')));

@@ -2,6 +2,7 @@
 //! controls, and the page. Handlers only read shared state or send a command; nothing
 //! here blocks the data path.
 
+use crate::event::Event;
 use crate::pipeline::Command;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
@@ -115,7 +116,7 @@ async fn control(
                 Ok(req) => match inj.inject(&req) {
                     Ok(msg) => {
                         // Logged (and counted) with the other events.
-                        s.publish_service_event("fault_injected", Some(&req.sensor), &msg);
+                        s.publish_service_event(Event::FaultInjected, Some(&req.sensor), &msg);
                         Json(json!({ "ok": true, "message": msg })).into_response()
                     }
                     Err(e) => bad(e),

@@ -3,13 +3,16 @@
 
 use crate::clock::now_us;
 use crate::config::Config;
+use crate::event::{EstimatorEvent, Event};
+use crate::health::{HealthState, Reason};
 use crate::hub::Hub;
-use crate::ingest::Ingest;
+use crate::ingest::{Ingest, InputStatus};
 use crate::output::mavlink_out::MavlinkStats;
 use crate::output::zenoh_out::ZenohOutStats;
 use crate::pipeline::{self, CommandSender, PipelineShared, PoseReceiver};
 use crate::sample::{Micros, Sample};
 use crate::sim::faults::FaultSchedule;
+use serde::Serialize;
 use serde_json::json;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
@@ -42,111 +45,112 @@ impl AppState {
         self.zenoh_closed.load(Relaxed)
     }
 
-    pub fn status_json(&self) -> serde_json::Value {
+    /// `GET /api/v1/status` (web/PROTOCOL.md).
+    pub fn status(&self) -> Status {
         let now = now_us();
         let (queue_capacity, queue_free) = match self.queue.upgrade() {
             Some(tx) => (tx.max_capacity(), tx.capacity()),
             None => (self.config.ingest.channel_capacity, 0),
         };
-        json!({
-            "service": {
-                "name": "skyfuse",
-                "version": env!("CARGO_PKG_VERSION"),
-                "vehicle": self.config.service.vehicle,
-                "uptime_s": (now - self.started_us) as f64 / 1e6,
-                "zenoh": {
-                    "zid": self.zenoh_zid,
-                    "mode": self.config.zenoh.mode,
-                    "locators": self.zenoh_locators,
-                    "connect": self.config.zenoh.connect,
-                    "routers": self.zenoh_routers.load(Relaxed),
-                    "peers": self.zenoh_peers.load(Relaxed),
+        let cfg = &self.config;
+        Status {
+            service: ServiceInfo {
+                name: "skyfuse",
+                version: env!("CARGO_PKG_VERSION"),
+                vehicle: cfg.service.vehicle.clone(),
+                uptime_s: (now - self.started_us) as f64 / 1e6,
+                zenoh: ZenohInfo {
+                    zid: self.zenoh_zid.clone(),
+                    mode: cfg.zenoh.mode,
+                    locators: self.zenoh_locators.clone(),
+                    connect: cfg.zenoh.connect.clone(),
+                    routers: self.zenoh_routers.load(Relaxed),
+                    peers: self.zenoh_peers.load(Relaxed),
                 },
             },
-            "ingest": {
-                "queue_capacity": queue_capacity,
-                "queue_len": queue_capacity - queue_free,
-                "consumed": self.pipeline.consumed.load(Relaxed),
+            ingest: IngestInfo {
+                queue_capacity,
+                queue_len: queue_capacity - queue_free,
+                consumed: self.pipeline.consumed.load(Relaxed),
             },
-            "sensors": self.sensors_json(now),
-            "estimator": self.pipeline.status_json(),
-            "outputs": [
-                self.mavlink_stats.status_json(now, self.config.mavlink.rate_hz),
-                self.zenoh_out_stats.status_json(&self.config.output, &self.config.output.prefix_for(&self.config.service.vehicle)),
+            sensors: self.sensors(now),
+            estimator: self.pipeline.status_json(),
+            outputs: [
+                self.mavlink_stats.status_json(now, cfg.mavlink.rate_hz),
+                self.zenoh_out_stats
+                    .status_json(&cfg.output, &cfg.output.prefix_for(&cfg.service.vehicle)),
             ],
-            "websocket": self.hub.stats_json(),
-            "controls": {
-                "enabled": !self.config.http.token.is_empty(),
-                "refused": self.controls_refused.load(Relaxed),
-                "fault_injection": self.faults.is_some(),
+            websocket: self.hub.stats_json(),
+            controls: Controls {
+                enabled: !cfg.http.token.is_empty(),
+                refused: self.controls_refused.load(Relaxed),
+                fault_injection: self.faults.is_some(),
             },
-        })
+        }
+    }
+
+    pub fn status_json(&self) -> serde_json::Value {
+        serde_json::to_value(self.status()).unwrap_or_default()
     }
 
     /// Per-sensor ingest counters with the health verdict: `health` is the sensor's
-    /// state (`ok`, `degraded`, `failed`, `stale`, `no_data`, `disabled`), `reasons`
-    /// why; `ingest` keeps the transport-level view (arriving, decodable).
-    pub fn sensors_json(&self, now: Micros) -> Vec<serde_json::Value> {
-        let health = self.pipeline.health_json();
+    /// state, `reasons` why; `ingest` keeps the transport-level view (arriving,
+    /// decodable). Before the first verdict (or for a disabled input) the transport view
+    /// is all there is; a bridge announcing another type than configured is a standing
+    /// fault, whatever arrived lately.
+    pub fn sensors(&self, now: Micros) -> Vec<SensorView> {
+        let verdicts = self.pipeline.health();
         self.ingest
             .statuses(now)
             .into_iter()
-            .map(|st| {
-                let mut v = serde_json::to_value(&st).unwrap_or_default();
-                let h = &health[st.id.as_str()];
-                if let Some(obj) = v.as_object_mut() {
-                    let ingest = obj.remove("health").unwrap_or_default();
-                    // Before the first verdict (or for a disabled input) the transport view
-                    // is all there is.
-                    let (state, reasons) = if h.is_null() || !st.enabled {
-                        (ingest["state"].clone(), ingest["reasons"].clone())
-                    } else {
-                        (h["state"].clone(), h["reasons"].clone())
-                    };
-                    // A bridge announcing another type than configured is a standing
-                    // fault, whatever arrived lately.
-                    let mismatch =
-                        self.config
-                            .inputs
-                            .iter()
-                            .find(|i| i.id == st.id)
-                            .and_then(|i| {
-                                crate::ingest::type_mismatch(
-                                    i,
-                                    self.ingest.announced_type(&i.key).as_deref(),
-                                )
-                            });
-                    let (state, reasons) = match mismatch {
-                        Some(why) => {
-                            let mut r = reasons.as_array().cloned().unwrap_or_default();
-                            r.insert(0, json!({"code": "type_mismatch", "text": why}));
-                            (json!("failed"), serde_json::Value::Array(r))
-                        }
-                        None => (state, reasons),
-                    };
-                    obj.insert("health".into(), state);
-                    obj.insert("reasons".into(), reasons);
-                    obj.insert("ingest".into(), ingest);
-                    for k in ["test_ratio", "used", "usable", "since_ms"] {
-                        obj.insert(k.into(), h[k].clone());
-                    }
-                    obj.insert("quality".into(), serde_json::Value::Null);
+            .map(|input| {
+                let verdict = verdicts
+                    .get(input.id.as_str())
+                    .filter(|_| input.enabled)
+                    .cloned();
+                let (mut health, mut reasons) = match &verdict {
+                    Some(v) => (v.state, v.reasons.clone()),
+                    None => (input.ingest.state, input.ingest.reasons.clone()),
+                };
+                let mismatch = self
+                    .config
+                    .inputs
+                    .iter()
+                    .find(|i| i.id == input.id)
+                    .and_then(|i| {
+                        crate::ingest::type_mismatch(
+                            i,
+                            self.ingest.announced_type(&i.key).as_deref(),
+                        )
+                    });
+                if let Some(why) = mismatch {
+                    health = HealthState::Failed;
+                    reasons.insert(
+                        0,
+                        Reason {
+                            code: "type_mismatch",
+                            text: why,
+                        },
+                    );
                 }
-                v
+                SensorView {
+                    health,
+                    reasons,
+                    test_ratio: verdict.as_ref().and_then(|v| v.test_ratio),
+                    used: verdict.as_ref().map(|v| v.used),
+                    usable: verdict.as_ref().map(|v| v.usable),
+                    since_ms: verdict.as_ref().and_then(|v| v.since_ms),
+                    quality: None,
+                    input,
+                }
             })
             .collect()
     }
 
     /// An event of the service itself (a control action, the Zenoh link), to the event
     /// log, the outputs and the dashboard.
-    pub fn publish_service_event(&self, kind: &'static str, source: Option<&str>, message: &str) {
-        let event = crate::estimator::EstimatorEvent {
-            time_us: now_us(),
-            kind,
-            source: source.map(String::from),
-            message: message.to_string(),
-            data: serde_json::Value::Null,
-        };
+    pub fn publish_service_event(&self, what: Event, source: Option<&str>, message: &str) {
+        let event = EstimatorEvent::new(now_us(), source, message.to_string(), what);
         pipeline::publish_events(&self.pipeline, &[event]);
     }
 
@@ -178,8 +182,75 @@ impl AppState {
     pub fn health_json(&self) -> serde_json::Value {
         json!({
             "time_us": now_us(),
-            "sensors": self.sensors_json(now_us()),
+            "sensors": self.sensors(now_us()),
             "estimator": self.pipeline.status_json(),
         })
     }
+}
+
+/// `GET /api/v1/status`: the parts this module assembles are typed; the estimator,
+/// outputs and websocket views come from their own modules.
+#[derive(Debug, Clone, Serialize)]
+pub struct Status {
+    pub service: ServiceInfo,
+    pub ingest: IngestInfo,
+    pub sensors: Vec<SensorView>,
+    /// [`crate::estimator::EstimatorStatus`], null before the estimator's first refresh.
+    pub estimator: serde_json::Value,
+    /// The MAVLink output, then the Zenoh output.
+    pub outputs: [serde_json::Value; 2],
+    pub websocket: serde_json::Value,
+    pub controls: Controls,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ServiceInfo {
+    pub name: &'static str,
+    pub version: &'static str,
+    pub vehicle: String,
+    pub uptime_s: f64,
+    pub zenoh: ZenohInfo,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ZenohInfo {
+    pub zid: String,
+    pub mode: crate::config::ZenohMode,
+    pub locators: Vec<String>,
+    pub connect: Vec<String>,
+    /// Routers and peers connected now (refreshed every second).
+    pub routers: u64,
+    pub peers: u64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct IngestInfo {
+    pub queue_capacity: usize,
+    pub queue_len: usize,
+    pub consumed: u64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Controls {
+    /// A token is configured (controls need it).
+    pub enabled: bool,
+    /// Control requests refused (bad or missing token).
+    pub refused: u64,
+    pub fault_injection: bool,
+}
+
+/// One sensor: its ingest counters (`ingest`: the transport's own verdict) and the
+/// health layer's verdict.
+#[derive(Debug, Clone, Serialize)]
+pub struct SensorView {
+    #[serde(flatten)]
+    pub input: InputStatus,
+    pub health: HealthState,
+    pub reasons: Vec<Reason>,
+    pub test_ratio: Option<f64>,
+    pub used: Option<bool>,
+    pub usable: Option<bool>,
+    pub since_ms: Option<f64>,
+    /// Not tracked per sensor yet (the page copes with null).
+    pub quality: Option<u8>,
 }

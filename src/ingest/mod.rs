@@ -127,7 +127,9 @@ pub struct InputStatus {
     pub rate_hz: f64,
     pub expected_rate_hz: f64,
     pub age_ms: Option<f64>,
-    pub health: IngestHealth,
+    /// The transport-level verdict (arriving, at rate, decodable).
+    #[serde(rename = "ingest")]
+    pub ingest: IngestHealth,
 }
 
 /// Ingest-level health of a stream: is data arriving, at the rate expected, and
@@ -138,21 +140,8 @@ pub struct IngestHealth {
     pub reasons: Vec<Reason>,
 }
 
-#[derive(Debug, Clone, Copy, Serialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-pub enum HealthState {
-    Ok,
-    Degraded,
-    Stale,
-    Disabled,
-    NoData,
-}
-
-#[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct Reason {
-    pub code: &'static str,
-    pub text: String,
-}
+// The same states and reasons as the sensor checks (crate::health), a subset of them.
+pub use crate::health::{HealthState, Reason};
 
 /// Recent rejections make a stream `degraded` for this long.
 const RECENT_ERROR_MS: f64 = 5000.0;
@@ -255,7 +244,7 @@ impl InputState {
             rate_hz,
             expected_rate_hz: self.config.rate_hz,
             age_ms,
-            health: IngestHealth { state, reasons },
+            ingest: IngestHealth { state, reasons },
         }
     }
 
@@ -549,8 +538,8 @@ mod tests {
         assert_eq!((s.received, s.accepted, s.rejected), (4, 2, 2));
         let err = s.last_error.expect("last error");
         assert!(err.contains("backwards"), "{err}");
-        assert_eq!(s.health.state, HealthState::Degraded);
-        assert_eq!(s.health.reasons[0].code, "rejecting");
+        assert_eq!(s.ingest.state, HealthState::Degraded);
+        assert_eq!(s.ingest.reasons[0].code, "rejecting");
     }
 
     /// mavlink-server's JSON of an ArduPilot ATTITUDE at `time_boot_ms`.
@@ -588,11 +577,11 @@ mod tests {
         let text = s.last_clock_restart.expect("restart text");
         assert!(text.contains("restarted (599.980 s → 1.040 s)"), "{text}");
         assert_eq!(
-            s.health.state,
+            s.ingest.state,
             HealthState::Degraded,
             "recent rejections show"
         );
-        assert_eq!(input.status(16_000_000).health.state, HealthState::Stale);
+        assert_eq!(input.status(16_000_000).ingest.state, HealthState::Stale);
     }
 
     #[test]
@@ -629,7 +618,7 @@ mod tests {
         assert!(ing.accept(&input, "imu", range, 1).is_empty());
         let s = input.status(2);
         assert_eq!((s.received, s.rejected, s.ignored), (1, 0, 1));
-        assert_eq!(s.health.state, HealthState::NoData);
+        assert_eq!(s.ingest.state, HealthState::NoData);
     }
 
     #[test]
@@ -638,9 +627,9 @@ mod tests {
         let input = ing.inputs[0].clone();
         ing.accept(&input, "imu", imu_json(1).as_bytes(), 1_000_000);
         // 100 Hz → stale after max(50 ms, 250 ms) = 250 ms.
-        assert_eq!(input.status(1_200_000).health.state, HealthState::Ok);
+        assert_eq!(input.status(1_200_000).ingest.state, HealthState::Ok);
         let s = input.status(1_300_000);
-        assert_eq!(s.health.state, HealthState::Stale);
+        assert_eq!(s.ingest.state, HealthState::Stale);
         assert_eq!(s.rate_hz, 0.0);
     }
 
@@ -654,7 +643,7 @@ mod tests {
         }
         let s = input.status(3_500_000);
         assert!((s.rate_hz - 100.0).abs() < 1.5, "{}", s.rate_hz);
-        assert_eq!(s.health.state, HealthState::Ok);
+        assert_eq!(s.ingest.state, HealthState::Ok);
     }
 
     #[test]

@@ -6,7 +6,7 @@
 use crate::codec::ros::{Point, PointStamped, Pose, PoseStamped, Quaternion, RosMessage};
 use crate::codec::EncodeError;
 use crate::config::OutputConfig;
-use crate::estimator::{DebugSeries, FusedPose};
+use crate::estimator::{DebugSeries, DebugTopic, FusedPose};
 use crate::pipeline::{DebugReceiver, PoseReceiver};
 use serde_json::{json, Value};
 use std::collections::BTreeMap;
@@ -78,25 +78,63 @@ pub fn pose_stamped(p: &FusedPose, frame_id: &str) -> Result<PoseStamped, Encode
     })
 }
 
-/// The JSON pose (README "Outputs").
-pub fn pose_json(p: &FusedPose, frame_id: &str) -> Value {
-    let q = p.orientation;
-    let m = |m: &nalgebra::Matrix3<f64>| -> Vec<f64> { m.transpose().iter().copied().collect() };
-    json!({
-        "time_us": p.time_us,
-        "frame": frame_id,
-        "position": [p.position.x, p.position.y, p.position.z],
-        "orientation": [q.i, q.j, q.k, q.w],
-        "velocity": [p.velocity.x, p.velocity.y, p.velocity.z],
-        "position_covariance": m(&p.position_cov),
-        "velocity_covariance": m(&p.velocity_cov),
-        "orientation_covariance": m(&p.orientation_cov),
-        "sources": p.sources,
-        "reset_counter": p.reset_counter,
-        "valid": p.valid,
-        "invalid_reason": p.invalid_reason,
-        "origin": p.origin.map(|(lat, lon, alt)| json!({"lat": lat, "lon": lon, "alt": alt})),
-    })
+/// The JSON pose on `<prefix>/pose` (README "Outputs"). Covariances row-major, m² /
+/// (m/s)² / rad²; `orientation` as x, y, z, w (body FLU → ENU).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PoseMessage<'a> {
+    pub time_us: i64,
+    pub frame: &'a str,
+    pub position: [f64; 3],
+    pub orientation: [f64; 4],
+    pub velocity: [f64; 3],
+    pub position_covariance: [f64; 9],
+    pub velocity_covariance: [f64; 9],
+    pub orientation_covariance: [f64; 9],
+    pub sources: &'a [String],
+    pub reset_counter: u8,
+    pub valid: bool,
+    pub invalid_reason: Option<&'a str>,
+    /// The ENU origin, once a GNSS fix set it.
+    pub origin: Option<GeoPoint>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct GeoPoint {
+    pub lat: f64,
+    pub lon: f64,
+    pub alt: f64,
+}
+
+impl<'a> PoseMessage<'a> {
+    pub fn of(p: &'a FusedPose, frame_id: &'a str) -> Self {
+        let q = p.orientation;
+        let rows = |m: &nalgebra::Matrix3<f64>| -> [f64; 9] {
+            let mut out = [0.0; 9];
+            for (o, v) in out.iter_mut().zip(m.transpose().iter()) {
+                *o = *v;
+            }
+            out
+        };
+        Self {
+            time_us: p.time_us,
+            frame: frame_id,
+            position: p.position.into(),
+            orientation: [q.i, q.j, q.k, q.w],
+            velocity: p.velocity.into(),
+            position_covariance: rows(&p.position_cov),
+            velocity_covariance: rows(&p.velocity_cov),
+            orientation_covariance: rows(&p.orientation_cov),
+            sources: &p.sources,
+            reset_counter: p.reset_counter,
+            valid: p.valid,
+            invalid_reason: p.invalid_reason.as_deref(),
+            origin: p.origin.map(|(lat, lon, alt)| GeoPoint { lat, lon, alt }),
+        }
+    }
+
+    pub fn to_bytes(&self) -> Vec<u8> {
+        serde_json::to_vec(self).unwrap_or_default()
+    }
 }
 
 /// Everything the Zenoh output publishes from.
@@ -118,7 +156,7 @@ pub async fn run(
 ) {
     let min_pose_interval_us = (1e6 / cfg.pose_rate_hz) as i64;
     let mut last_pose_us: Option<i64> = None;
-    let mut sent_debug: BTreeMap<&'static str, i64> = BTreeMap::new();
+    let mut sent_debug: BTreeMap<DebugTopic, i64> = BTreeMap::new();
     let mut health = tokio::time::interval(HEALTH_INTERVAL);
     health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let put = |key: String, payload: Vec<u8>| {
@@ -149,7 +187,7 @@ pub async fn run(
                 last_pose_us = Some(p.time_us);
                 let mut ok = true;
                 if cfg.json {
-                    ok &= put(format!("{prefix}/pose"), pose_json(&p, &cfg.ros2_frame_id).to_string().into_bytes()).await;
+                    ok &= put(format!("{prefix}/pose"), PoseMessage::of(&p, &cfg.ros2_frame_id).to_bytes()).await;
                 }
                 // ROS consumers get only valid poses: rviz and planners cannot read a flag.
                 if cfg.ros2 && p.valid {
@@ -166,10 +204,11 @@ pub async fn run(
                 if changed.is_err() { break; }
                 if !(cfg.ros2 && cfg.ros2_debug) { continue; }
                 let d: Arc<DebugSeries> = inp.debug.borrow_and_update().clone();
-                for topic in crate::estimator::DEBUG_TOPICS {
-                    let Some(pt) = d.series.get(topic) else { continue };
-                    if sent_debug.get(topic).is_some_and(|&t| t >= pt.time_us) { continue; }
+                for topic in DebugTopic::PUBLISHED {
+                    let Some(pt) = d.series.get(&topic) else { continue };
+                    if sent_debug.get(&topic).is_some_and(|&t| t >= pt.time_us) { continue; }
                     sent_debug.insert(topic, pt.time_us);
+                    let topic = topic.name();
                     let header = match crate::codec::ros::header(pt.time_us, &cfg.ros2_frame_id, false) {
                         Ok(h) => h,
                         Err(e) => { stats.error(format!("{topic}: {e}")); continue; }
@@ -229,8 +268,11 @@ mod tests {
         assert_eq!(back.header.frame_id, "map");
         assert_eq!(back.pose.position.y, -2.0);
         assert!((back.pose.orientation.z - (0.25f64).sin()).abs() < 1e-12);
-        let j = pose_json(&p, "map");
+        let j: Value =
+            serde_json::from_slice(&PoseMessage::of(&p, "map").to_bytes()).expect("json");
         assert_eq!(j["position"][2], 3.5);
         assert_eq!(j["valid"], true);
+        assert_eq!(j["frame"], "map");
+        assert!(j["origin"].is_null());
     }
 }

@@ -3,10 +3,9 @@
 //! service (its `pipeline`) and offline runs ([`crate::offline`]) use this same
 //! core, so what is measured offline is what flies. Pure: time comes with the samples.
 
-use crate::estimator::{Estimator, EstimatorConfig, EstimatorEvent};
+use crate::estimator::{Estimator, EstimatorConfig, EstimatorEvent, Event};
 use crate::health::{HealthConfig, HealthMonitor, Transition};
 use crate::sample::{Sample, SensorKind};
-use serde_json::json;
 
 /// Health is re-evaluated at most this often (host time), µs.
 const EVALUATE_EVERY_US: i64 = 20_000;
@@ -48,7 +47,7 @@ impl Fusion {
             self.health.on_sample(s, now_us);
             if s.data.kind() != SensorKind::AutopilotEstimate {
                 for e in self.est.process(s) {
-                    if e.kind == "monitor_reset" {
+                    if matches!(e.what, Event::MonitorReset(_)) {
                         self.health.on_divergence(&e.message, now_us);
                     }
                     events.push(e);
@@ -99,15 +98,14 @@ impl Fusion {
 
 /// A health transition as an event.
 pub fn transition_event(tr: &Transition) -> EstimatorEvent {
-    EstimatorEvent {
-        time_us: tr.time_us,
-        kind: "health",
-        source: Some(tr.sensor.clone()),
-        message: tr.message(),
-        data: json!({
-            "from": tr.from,
-            "to": tr.to,
-            "reasons": tr.reasons,
-        }),
-    }
+    EstimatorEvent::new(
+        tr.time_us,
+        Some(&tr.sensor),
+        tr.message(),
+        Event::Health {
+            from: tr.from,
+            to: tr.to,
+            reasons: tr.reasons.clone(),
+        },
+    )
 }

@@ -11,6 +11,7 @@
 //! - [`geo`]: WGS-84 geodetic ↔ local ENU.
 //! - [`estimator`]: the deterministic estimator (time passed in, never read).
 //! - [`health`]: per-sensor health checks with hysteresis.
+//! - [`event`]: what happened, typed (estimator, health, service), JSON only at the edge.
 //! - [`fusion`]: the estimator under health supervision, shared by service and offline.
 //! - [`sim`]: the simulated vehicle (truth, sensor models, faults, scenarios).
 //! - [`replay`]: recorded flights as samples (PX4 ULog and CSV, MAVLink tlogs).
@@ -24,6 +25,7 @@
 pub mod codec;
 pub mod estimator;
 pub mod eval;
+pub mod event;
 pub mod fusion;
 pub mod geo;
 pub mod health;

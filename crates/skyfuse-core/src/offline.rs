@@ -6,7 +6,7 @@
 //! Output files are a pure function of the input: replaying twice gives byte-identical
 //! files (no wall-clock time, no hash-map ordering, fixed number formatting).
 
-use crate::estimator::{Estimator, EstimatorConfig, EstimatorEvent, Mode};
+use crate::estimator::{DebugTopic, Estimator, EstimatorConfig, EstimatorEvent, Event, Mode};
 use crate::eval::{evo_ape, ApeOptions, ApeStats, Trajectory};
 use crate::fusion::{Fusion, InputList, InputSpec};
 use crate::geo::LocalEnu;
@@ -18,7 +18,6 @@ use crate::sim::truth::truth_of;
 use crate::sim::Simulator;
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;
-use serde_json::json;
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -157,18 +156,10 @@ impl Recorder {
     /// Record what the estimator produced after a sample.
     pub fn estimator_output(&mut self, est: &Estimator, events: &[EstimatorEvent]) {
         for e in events {
-            self.events.push(
-                json!({
-                    "t": self.secs(e.time_us),
-                    "kind": e.kind,
-                    "source": e.source,
-                    "message": e.message,
-                    "data": e.data,
-                })
-                .to_string(),
-            );
+            self.events
+                .push(e.to_json(self.secs(e.time_us), false).to_string());
         }
-        if let Some(p) = est.debug().series.get("OF_sum") {
+        if let Some(p) = est.debug().series.get(&DebugTopic::OfSum) {
             if self
                 .flow_taken
                 .get(&p.source)
@@ -201,11 +192,10 @@ impl Recorder {
         }
     }
 
-    pub fn event(&mut self, t_s: f64, kind: &str, source: Option<&str>, message: &str) {
-        self.events.push(
-            json!({ "t": t_s, "kind": kind, "source": source, "message": message, "data": null })
-                .to_string(),
-        );
+    /// An event of the run itself (not the estimator's), at `t_s` of the run.
+    pub fn event(&mut self, t_s: f64, source: Option<&str>, message: &str, what: Event) {
+        let e = EstimatorEvent::new(0, source, message.to_string(), what);
+        self.events.push(e.to_json(t_s, false).to_string());
     }
 }
 
@@ -535,16 +525,16 @@ pub fn run_scenario(
     for f in &scn.faults {
         rec.event(
             f.start_s,
-            "fault_injected",
             Some(&f.sensor),
             &format!("sim: fault {} on {} starts", f.kind.as_str(), f.sensor),
+            Event::FaultInjected,
         );
         if f.end_s.is_finite() {
             rec.event(
                 f.end_s,
-                "fault_cleared",
                 Some(&f.sensor),
                 &format!("sim: fault {} on {} ends", f.kind.as_str(), f.sensor),
+                Event::FaultCleared,
             );
         }
     }

@@ -14,7 +14,8 @@
 
 use super::attitude::{cos_tilt, yaw_of};
 use super::imu::Lpf3;
-use super::{Core, Ctx};
+use super::{Core, Ctx, DebugTopic, Event};
+use crate::event::CalibrationResult;
 use crate::sample::OpticalFlow;
 use nalgebra::{Matrix3, UnitQuaternion, Vector2, Vector3};
 use serde::Serialize;
@@ -221,7 +222,12 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
             rate_noise,
             cfg.range_noise,
         );
-        core.debug_point(t, "OF_data", source, Vector3::new(rate.x, rate.y, 0.0));
+        core.debug_point(
+            t,
+            DebugTopic::OfData,
+            source,
+            Vector3::new(rate.x, rate.y, 0.0),
+        );
         fv
     } else if let Some(v) = f.velocity.filter(|v| v.iter().all(|x| x.is_finite())) {
         let s = rate_noise * height;
@@ -239,10 +245,15 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
         return;
     };
     let c = fv.compensated;
-    core.debug_point(t, "compensated_OF", source, Vector3::new(c.x, c.y, 0.0));
+    core.debug_point(
+        t,
+        DebugTopic::CompensatedOf,
+        source,
+        Vector3::new(c.x, c.y, 0.0),
+    );
     // The gyro as used by the compensation (low-passed, clamped): seed 001's plot set.
     let g = fv.gyro;
-    core.debug_point(t, "flow_gyro", source, Vector3::new(g.x, g.y, 0.0));
+    core.debug_point(t, DebugTopic::FlowGyro, source, Vector3::new(g.x, g.y, 0.0));
     // Navigation frame by yaw, integrated (seed 001: sum_flow += speed · dt).
     let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_of(&core.att.q));
     let v_nav = yaw * Vector3::new(fv.vel_body.x, fv.vel_body.y, 0.0);
@@ -256,8 +267,8 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     if dt > 0.0 && !low {
         let d = v_nav * dt;
         st.of_sum += d;
-        core.debug_point(t, "OF_sum", source, st.of_sum);
-        core.debug_point(t, "origin_dOF", source, d);
+        core.debug_point(t, DebugTopic::OfSum, source, st.of_sum);
+        core.debug_point(t, DebugTopic::OriginDOf, source, d);
         let var = Vector3::new(fv.var.x * dt * dt, fv.var.y * dt * dt, f64::INFINITY);
         core.wrls.add_relative(source, d, var, dt);
     }
@@ -313,10 +324,12 @@ fn calibration_sample(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fv: &Flo
         core.flow_cal.state = CalState::Failed;
         core.event(
             t,
-            "calibration_result",
             Some(source),
             "flow calibration timed out".into(),
-            serde_json::json!({ "success": false, "reason": "timeout" }),
+            Event::CalibrationResult(CalibrationResult::TimedOut {
+                success: false,
+                reason: "timeout",
+            }),
         );
         return;
     }
@@ -350,10 +363,12 @@ fn calibration_sample(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fv: &Flo
         let success = ok(&rx) && ok(&ry);
         let (sx, bx, ax) = rx.unwrap_or((f64::NAN, f64::NAN, f64::NAN));
         let (sy, by, ay) = ry.unwrap_or((f64::NAN, f64::NAN, f64::NAN));
-        let data = serde_json::json!({
-            "success": success,
-            "scale_x": sx, "scale_y": sy,
-            "rms_before": [bx, by], "rms_after": [ax, ay],
+        let what = Event::CalibrationResult(CalibrationResult::Done {
+            success,
+            scale_x: sx,
+            scale_y: sy,
+            rms_before: [bx, by],
+            rms_after: [ax, ay],
         });
         if success {
             core.flow_cal.state = CalState::Success;
@@ -366,13 +381,12 @@ fn calibration_sample(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fv: &Flo
         }
         core.event(
             t,
-            "calibration_result",
             Some(source),
             format!(
                 "flow calibration {}: scale x {sx:.3}, y {sy:.3}",
                 if success { "succeeded" } else { "failed" }
             ),
-            data,
+            what,
         );
     }
 }

@@ -8,7 +8,7 @@
 //! velocity where the message has one.
 
 use super::config::EstimatorConfig;
-use super::{Core, Ctx};
+use super::{Core, Ctx, DebugTopic, Event};
 use crate::geo::LocalEnu;
 use crate::sample::{GnssFix, GnssFixType};
 use nalgebra::{Matrix3, Vector3};
@@ -86,25 +86,24 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
             core.gnss.origin = Some(origin);
             core.event(
                 t,
-                "origin_set",
                 Some(source),
                 format!(
                     "ENU origin set from GNSS at {:.7}, {:.7}, {:.2} m",
                     origin.origin_lat_deg, origin.origin_lon_deg, origin.origin_alt_m
                 ),
-                serde_json::json!({
-                    "lat": origin.origin_lat_deg,
-                    "lon": origin.origin_lon_deg,
-                    "alt": origin.origin_alt_m,
-                }),
+                Event::OriginSet {
+                    lat: origin.origin_lat_deg,
+                    lon: origin.origin_lon_deg,
+                    alt: origin.origin_alt_m,
+                },
             );
             origin
         }
     };
     let enu = origin.to_enu(fix.lat_deg, fix.lon_deg, fix.alt_m);
-    core.debug_point(t, "oriUAV_gps", source, enu);
+    core.debug_point(t, DebugTopic::OriUavGps, source, enu);
     if let Some((_, last)) = core.gnss.last.get(source) {
-        core.debug_point(t, "origin_dgps", source, enu - last);
+        core.debug_point(t, DebugTopic::OriginDgps, source, enu - last);
     }
     core.gnss.last.insert(source.to_string(), (t, enu));
     let vel = fix
@@ -165,13 +164,16 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
             let jump = (enu - bias - from).norm();
             core.event(
                 t,
-                "reset",
                 Some(source),
                 format!(
                     "position reset to {source} after {} without position sources (moved {jump:.2} m)",
                     gap_s.map(|g| format!("{g:.1} s")).unwrap_or_else(|| "a spell".into())
                 ),
-                serde_json::json!({ "reset_counter": core.reset_counter, "jump_m": jump, "gap_s": gap_s }),
+                Event::Reset(crate::event::Reset::Gnss {
+                    reset_counter: core.reset_counter,
+                    jump_m: jump,
+                    gap_s,
+                }),
             );
             core.aided(t, "gnss");
             core.unaided_since = None;

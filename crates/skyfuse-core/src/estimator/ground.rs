@@ -26,7 +26,8 @@
 
 use super::ekf::{dvec, GRAVITY, IDX_P, IDX_TERRAIN, IDX_V};
 use super::imu::Lpf3;
-use super::{Core, Ctx};
+use super::{Core, Ctx, Event};
+use crate::event::ConstraintChange;
 use crate::sample::{LandedState, VehicleState};
 use nalgebra::{DMatrix, Vector3};
 
@@ -237,10 +238,14 @@ pub fn control(core: &mut Core, ctx: &Ctx, t: i64) {
             if !core.ground.handled(t) {
                 core.event(
                     t,
-                    "handled",
                     None,
-                    "disarmed but moving: carried, the estimate is not valid until it is set down".into(),
-                    serde_json::json!({ "lifted": lifted, "moving": moving, "imu_moving": imu_moving }),
+                    "disarmed but moving: carried, the estimate is not valid until it is set down"
+                        .into(),
+                    Event::Handled {
+                        lifted,
+                        moving,
+                        imu_moving,
+                    },
                 );
             }
             core.ground.handled_until = Some(t + HANDLED_HOLD_US);
@@ -352,10 +357,12 @@ fn transition(core: &mut Core, t: i64, to: Option<Constraint>) {
             };
             core.event(
                 t,
-                "constraint",
                 None,
                 message,
-                serde_json::json!({ "constraint": c.as_str(), "hold": [p.x, p.y, p.z] }),
+                Event::Constraint(ConstraintChange::Started {
+                    constraint: c.as_str(),
+                    hold: p.into(),
+                }),
             );
             if from.is_none() {
                 core.ground.since = Some(t);
@@ -365,10 +372,12 @@ fn transition(core: &mut Core, t: i64, to: Option<Constraint>) {
             let held_s = core.ground.since.map_or(0.0, |s| (t - s) as f64 * 1e-6);
             core.event(
                 t,
-                "constraint",
                 None,
                 format!("horizontal aiding resumed after {held_s:.1} s of constraints"),
-                serde_json::json!({ "constraint": null, "held_s": held_s }),
+                Event::Constraint(ConstraintChange::Released {
+                    constraint: None,
+                    held_s,
+                }),
             );
             core.ground.hold = None;
             core.ground.since = None;

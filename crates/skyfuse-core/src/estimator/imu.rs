@@ -4,7 +4,7 @@
 
 use super::attitude::check_quaternion;
 use super::config::EstimatorConfig;
-use super::{Core, Ctx};
+use super::{Core, Ctx, DebugTopic, Event};
 use crate::sample::{Attitude, Imu};
 use nalgebra::{Matrix3, Vector3};
 
@@ -118,10 +118,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
         let src = core.att.source.as_str();
         core.event(
             t,
-            "source_switch",
             Some(source),
             format!("attitude source is now {src}"),
-            serde_json::json!({ "attitude": src }),
+            Event::SourceSwitch(crate::event::SourceSwitch::Attitude { attitude: src }),
         );
     }
     if core.att.source == super::attitude::AttitudeSource::Own {
@@ -132,7 +131,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
     if let Some(w) = rate {
         core.imu.rate = Some((t, w));
         core.flow_gyro_sample(t, w, ctx);
-        core.debug_point(t, "imu_angular_velocity", source, w);
+        core.debug_point(t, DebugTopic::ImuAngularVelocity, source, w);
     }
     core.imu.last = Some(ImuInput {
         t,

@@ -40,6 +40,7 @@ pub mod wrls;
 pub use config::{EstimatorConfig, Mode, SourceConfig};
 pub use flow::CalState;
 
+use crate::event;
 use crate::sample::{Sample, SensorData, SensorKind};
 use attitude::AttitudeState;
 use ekf::{dmat3, dvec, Ekf, UpdateOutcome, GRAVITY, IDX_P, IDX_V};
@@ -79,26 +80,85 @@ pub struct FusedPose {
     pub origin: Option<(f64, f64, f64)>,
 }
 
-#[derive(Clone, Debug, Serialize, PartialEq)]
-pub struct EstimatorEvent {
-    pub time_us: i64,
-    pub kind: &'static str,
-    pub source: Option<String>,
-    pub message: String,
-    pub data: serde_json::Value,
+pub use crate::event::{EstimatorEvent, Event};
+
+/// The estimator's debug series: the seed's rqt_plot topics (named as the seed names
+/// them) and a few more the dashboard plots.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum DebugTopic {
+    /// Raw flow rate (rad/s).
+    OfData,
+    /// Flow rate after rotation compensation (rad/s).
+    CompensatedOf,
+    /// The gyro as the flow compensation used it (low-passed, clamped).
+    FlowGyro,
+    /// Flow displacement integrated (m).
+    OfSum,
+    /// Flow displacement per fusion step (m).
+    OriginDOf,
+    /// Odometry position in the fused frame, and its step.
+    OriUavT265,
+    OriginDt265,
+    /// GNSS position in the fused frame, and its step.
+    OriUavGps,
+    OriginDgps,
+    /// The fused pose's step.
+    FusionDisplace,
+    /// The fused position.
+    PoseMsg,
+    ImuAngularVelocity,
 }
 
-/// The seed's debug topics that are published (name under `ros2_debug_prefix`).
-pub const DEBUG_TOPICS: [&str; 8] = [
-    "compensated_OF",
-    "OF_sum",
-    "oriUAV_t265",
-    "oriUAV_gps",
-    "origin_dOF",
-    "origin_dt265",
-    "origin_dgps",
-    "fusion_displace",
-];
+impl DebugTopic {
+    /// Published on Zenoh as geometry_msgs/PointStamped under `ros2_debug_prefix`.
+    pub const PUBLISHED: [DebugTopic; 8] = [
+        DebugTopic::CompensatedOf,
+        DebugTopic::OfSum,
+        DebugTopic::OriUavT265,
+        DebugTopic::OriUavGps,
+        DebugTopic::OriginDOf,
+        DebugTopic::OriginDt265,
+        DebugTopic::OriginDgps,
+        DebugTopic::FusionDisplace,
+    ];
+    /// Accumulated position per source (the dashboard's `sources`).
+    pub const POSITIONS: [DebugTopic; 3] = [
+        DebugTopic::OriUavGps,
+        DebugTopic::OriUavT265,
+        DebugTopic::OfSum,
+    ];
+    /// Per-step displacement per source and of the fused pose (the dashboard's `deltas`).
+    pub const DELTAS: [DebugTopic; 4] = [
+        DebugTopic::OriginDgps,
+        DebugTopic::OriginDt265,
+        DebugTopic::OriginDOf,
+        DebugTopic::FusionDisplace,
+    ];
+
+    /// The seed's name (the Zenoh key's last part).
+    pub fn name(self) -> &'static str {
+        match self {
+            DebugTopic::OfData => "OF_data",
+            DebugTopic::CompensatedOf => "compensated_OF",
+            DebugTopic::FlowGyro => "flow_gyro",
+            DebugTopic::OfSum => "OF_sum",
+            DebugTopic::OriginDOf => "origin_dOF",
+            DebugTopic::OriUavT265 => "oriUAV_t265",
+            DebugTopic::OriginDt265 => "origin_dt265",
+            DebugTopic::OriUavGps => "oriUAV_gps",
+            DebugTopic::OriginDgps => "origin_dgps",
+            DebugTopic::FusionDisplace => "fusion_displace",
+            DebugTopic::PoseMsg => "pose_msg",
+            DebugTopic::ImuAngularVelocity => "imu_angular_velocity",
+        }
+    }
+}
+
+impl Serialize for DebugTopic {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
+    }
+}
 
 /// One point of a debug series (the seed's rqt_plot topics).
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
@@ -108,12 +168,10 @@ pub struct DebugPoint {
     pub value: [f64; 3],
 }
 
-/// The latest point per topic: `OF_data`, `imu_angular_velocity`, `compensated_OF`,
-/// `OF_sum`, `origin_dOF`, `oriUAV_t265`, `origin_dt265`, `oriUAV_gps`, `origin_dgps`,
-/// `fusion_displace`, `pose_msg`.
+/// The latest point per topic.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct DebugSeries {
-    pub series: BTreeMap<&'static str, DebugPoint>,
+    pub series: BTreeMap<DebugTopic, DebugPoint>,
 }
 
 /// Per-source state for the status API and the health layer.
@@ -270,33 +328,13 @@ impl Core {
         self.mode_ekf_direct
     }
 
-    pub fn event(
-        &mut self,
-        t: i64,
-        kind: &'static str,
-        source: Option<&str>,
-        message: String,
-        data: serde_json::Value,
-    ) {
-        self.events.push(EstimatorEvent {
-            time_us: t,
-            kind,
-            source: source.map(str::to_string),
-            message,
-            data,
-        });
+    pub fn event(&mut self, t: i64, source: Option<&str>, message: String, what: Event) {
+        self.events
+            .push(EstimatorEvent::new(t, source, message, what));
     }
 
-    fn throttled_event(
-        &mut self,
-        t: i64,
-        kind: &'static str,
-        source: &str,
-        message: String,
-        data: serde_json::Value,
-        ctx: &Ctx,
-    ) {
-        let key = format!("{kind}/{source}");
+    fn throttled_event(&mut self, t: i64, source: &str, message: String, what: Event, ctx: &Ctx) {
+        let key = format!("{}/{source}", what.kind());
         let every = (ctx.cfg.event_throttle_ms * 1000.0) as i64;
         if self
             .throttle
@@ -306,7 +344,7 @@ impl Core {
             return;
         }
         self.throttle.insert(key, t);
-        self.event(t, kind, Some(source), message, data);
+        self.event(t, Some(source), message, what);
     }
 
     /// A sample failed its checks.
@@ -316,15 +354,16 @@ impl Core {
         st.last_reject_reason = Some(why.to_string());
         self.throttled_event(
             t,
-            "sample_rejected",
             source,
             format!("{source}: {why}"),
-            serde_json::json!({ "reason": why }),
+            Event::SampleRejected {
+                reason: why.to_string(),
+            },
             ctx,
         );
     }
 
-    pub fn debug_point(&mut self, t: i64, topic: &'static str, source: &str, v: Vector3<f64>) {
+    pub fn debug_point(&mut self, t: i64, topic: DebugTopic, source: &str, v: Vector3<f64>) {
         let p = self.debug.series.entry(topic).or_default();
         p.time_us = t;
         if p.source != source {
@@ -392,10 +431,12 @@ impl Core {
             let ratio = out.test_ratio;
             self.throttled_event(
                 t,
-                "gate_reject",
                 source,
                 format!("{source}: innovation test ratio {ratio:.2} > 1, measurement rejected"),
-                serde_json::json!({ "test_ratio": ratio, "innovation": out.innovation }),
+                Event::GateReject {
+                    test_ratio: ratio,
+                    innovation: out.innovation.clone(),
+                },
                 ctx,
             );
         }
@@ -665,13 +706,14 @@ impl Core {
         }
         self.event(
             t,
-            "initialised",
             Some(source),
             format!(
                 "filter initialised from {source} at ({:.2}, {:.2}, {:.2})",
                 pos.x, pos.y, pos.z
             ),
-            serde_json::json!({ "position": [pos.x, pos.y, pos.z] }),
+            Event::Initialised {
+                position: pos.into(),
+            },
         );
     }
 
@@ -681,9 +723,9 @@ impl Core {
         let period_us = (cfg.wrls_period_ms * 1000.0) as i64;
         let outs = self.wrls.tick(t, period_us, cfg.wrls_no_delta_var);
         for o in outs {
-            self.debug_point(o.t, "fusion_displace", "wrls", o.delta);
+            self.debug_point(o.t, DebugTopic::FusionDisplace, "wrls", o.delta);
             if self.mode_wrls {
-                self.debug_point(o.t, "pose_msg", "wrls", o.x);
+                self.debug_point(o.t, DebugTopic::PoseMsg, "wrls", o.x);
             }
             if cfg.mode == Mode::WrlsEkf && self.ekf.is_some() {
                 let every = (1e6 / cfg.wrls_ekf_rate_hz.max(1e-3)) as i64;
@@ -801,10 +843,11 @@ impl Core {
                 self.reset_counter = self.reset_counter.wrapping_add(1);
                 self.event(
                     t,
-                    "reset",
                     None,
                     "numerical failure (non-finite state): filter restarted".into(),
-                    serde_json::json!({ "reset_counter": self.reset_counter }),
+                    Event::Reset(event::Reset::Restart {
+                        reset_counter: self.reset_counter,
+                    }),
                 );
                 return;
             }
@@ -814,17 +857,29 @@ impl Core {
                 self.apply_monitor_reset(t, r, ctx);
             }
             if !self.mode_wrls {
-                self.debug_point(t, "pose_msg", "ekf", p);
+                self.debug_point(t, DebugTopic::PoseMsg, "ekf", p);
             }
         }
         let used = self.used_sources(t, cfg);
         if used != self.used_set {
-            let added: Vec<&String> = used.iter().filter(|s| !self.used_set.contains(s)).collect();
-            let removed: Vec<&String> =
-                self.used_set.iter().filter(|s| !used.contains(s)).collect();
+            let added: Vec<String> = used
+                .iter()
+                .filter(|s| !self.used_set.contains(s))
+                .cloned()
+                .collect();
+            let removed: Vec<String> = self
+                .used_set
+                .iter()
+                .filter(|s| !used.contains(s))
+                .cloned()
+                .collect();
             let msg = format!("sources now {used:?} (added {added:?}, removed {removed:?})");
-            let data = serde_json::json!({ "sources": used, "added": added, "removed": removed });
-            self.event(t, "source_switch", None, msg, data);
+            let what = Event::SourceSwitch(event::SourceSwitch::Fused {
+                sources: used.clone(),
+                added,
+                removed,
+            });
+            self.event(t, None, msg, what);
             self.used_set = used;
         }
     }
@@ -859,13 +914,16 @@ impl Core {
         let to = [pos.x, pos.y, pos.z];
         self.event(
             t,
-            "monitor_reset",
             None,
             format!("reset to the {} monitor: {}", r.monitor, r.reason),
-            serde_json::json!({
-                "monitor": r.monitor, "reason": r.reason, "from": from, "to": to,
-                "position_departure_m": r.pos_err, "velocity_departure_mps": r.vel_err,
-                "reset_counter": self.reset_counter,
+            Event::MonitorReset(event::MonitorReset {
+                monitor: r.monitor,
+                reason: r.reason.clone(),
+                from,
+                to,
+                position_departure_m: r.pos_err,
+                velocity_departure_mps: r.vel_err,
+                reset_counter: self.reset_counter,
             }),
         );
     }
@@ -1051,16 +1109,17 @@ impl Estimator {
             self.late_dropped += 1;
             if self.late_event_t.is_none_or(|l| t - l > 1_000_000 || t < l) {
                 self.late_event_t = Some(t);
-                let ev = EstimatorEvent {
-                    time_us: t,
-                    kind: "late_drop",
-                    source: Some(src.to_string()),
-                    message: format!(
+                let ev = EstimatorEvent::new(
+                    t,
+                    Some(src),
+                    format!(
                         "{src}: sample older than the {} ms history dropped",
                         self.cfg.history_ms
                     ),
-                    data: serde_json::json!({ "dropped": self.late_dropped }),
-                };
+                    Event::LateDrop {
+                        dropped: self.late_dropped,
+                    },
+                );
                 return vec![ev];
             }
             return vec![];
@@ -1113,7 +1172,7 @@ impl Estimator {
             self.core
                 .process_entry(e.key.t, &e.key.source, &e.data, &ctx);
             for ev in self.core.events.drain(..) {
-                let sig = (ev.time_us, ev.kind, ev.source.clone(), ev.message.clone());
+                let sig = (ev.time_us, ev.kind(), ev.source.clone(), ev.message.clone());
                 if self.emitted.insert(sig) {
                     out.push(ev);
                 }
@@ -1223,16 +1282,18 @@ impl Estimator {
         if before == usable {
             return vec![];
         }
-        vec![EstimatorEvent {
-            time_us: self.core.t.unwrap_or(0),
-            kind: "source_usable",
-            source: Some(source.to_string()),
-            message: format!(
+        vec![EstimatorEvent::new(
+            self.core.t.unwrap_or(0),
+            Some(source),
+            format!(
                 "{source} {} by health: {reason}",
                 if usable { "enabled" } else { "disabled" }
             ),
-            data: serde_json::json!({ "usable": usable, "reason": reason }),
-        }]
+            Event::SourceUsable {
+                usable,
+                reason: reason.to_string(),
+            },
+        )]
     }
 
     /// Make the current horizontal position the new origin (a discontinuity).
@@ -1260,13 +1321,15 @@ impl Estimator {
             }
         }
         c.reset_counter = c.reset_counter.wrapping_add(1);
-        let ev = EstimatorEvent {
-            time_us: now_us,
-            kind: "reset",
-            source: None,
-            message: format!("origin reset: moved by ({:.2}, {:.2}) m", d.x, d.y),
-            data: serde_json::json!({ "shift": [d.x, d.y, d.z], "reset_counter": c.reset_counter }),
-        };
+        let ev = EstimatorEvent::new(
+            now_us,
+            None,
+            format!("origin reset: moved by ({:.2}, {:.2}) m", d.x, d.y),
+            Event::Reset(event::Reset::Origin {
+                shift: d.into(),
+                reset_counter: c.reset_counter,
+            }),
+        );
         self.clear_history();
         vec![ev]
     }
@@ -1278,13 +1341,14 @@ impl Estimator {
         for (_, s) in self.snaps.iter_mut() {
             s.flow_cal.start(now_us);
         }
-        vec![EstimatorEvent {
-            time_us: now_us,
-            kind: "calibration_started",
-            source: None,
-            message: "flow scale calibration started: fly with horizontal motion".into(),
-            data: serde_json::json!({ "samples_per_axis": self.cfg.flow_cal_samples }),
-        }]
+        vec![EstimatorEvent::new(
+            now_us,
+            None,
+            "flow scale calibration started: fly with horizontal motion".into(),
+            Event::CalibrationStarted {
+                samples_per_axis: self.cfg.flow_cal_samples,
+            },
+        )]
     }
 
     /// Innovation test ratio of the last update per source: 0..; > 1 rejected.

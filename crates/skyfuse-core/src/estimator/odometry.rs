@@ -12,7 +12,7 @@
 
 use super::attitude::{wrap_pi, yaw_of};
 use super::ekf::IDX_V;
-use super::{Core, Ctx};
+use super::{Core, Ctx, DebugTopic, Event};
 use crate::sample::Odometry;
 use nalgebra::{DMatrix, Matrix3, Quaternion, UnitQuaternion, Vector3};
 
@@ -182,10 +182,13 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
         }
         core.event(
             t,
-            "segment",
             Some(source),
             format!("odometry segment {} started: {why}", st.segment),
-            serde_json::json!({ "segment": st.segment, "reason": why, "yaw_align": yaw_align }),
+            Event::Segment {
+                segment: st.segment,
+                reason: why.to_string(),
+                yaw_align,
+            },
         );
     }
     let Some(al) = st.align.clone() else {
@@ -194,7 +197,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
     };
     let z = al.rot * b.pos + al.trans;
     st.heading = Some((t, wrap_pi(yaw_of(&b.att) + yaw_of(&al.rot))));
-    core.debug_point(t, "oriUAV_t265", source, z);
+    core.debug_point(t, DebugTopic::OriUavT265, source, z);
     // WRLS: frame-to-frame displacement within a segment.
     if let (false, Some((t0, p0, _))) = (new_segment, st.last) {
         let dt = (t - t0) as f64 * 1e-6;
@@ -205,7 +208,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
                 .map_or(cfg.vo_vel_noise.powi(2), |c| c.trace() / 3.0);
             let drift = sc.drift_rw.unwrap_or(cfg.vo_drift_rw);
             let var = vel_var * dt * dt + drift * drift * dt;
-            core.debug_point(t, "origin_dt265", source, delta);
+            core.debug_point(t, DebugTopic::OriginDt265, source, delta);
             core.wrls
                 .add_relative(source, delta, Vector3::repeat(var), dt);
         }

@@ -17,7 +17,7 @@
 use super::attitude::cos_tilt;
 use super::config::{DEFAULT_RANGE_MAX_M, DEFAULT_RANGE_MIN_M};
 use super::ekf::{dvec, IDX_P, IDX_TERRAIN};
-use super::{Core, Ctx};
+use super::{Core, Ctx, Event};
 use crate::sample::Range;
 use nalgebra::DMatrix;
 
@@ -130,12 +130,15 @@ fn reset_terrain_if_rejected(
     ekf.reset_terrain(terrain, r);
     core.event(
         t,
-        "terrain_reset",
         Some(source),
         format!(
             "{source}: terrain reset, height above it {before:.2} -> {h_meas:.2} m (the ground under the vehicle changed)"
         ),
-        serde_json::json!({ "from_m": before, "to_m": h_meas, "test_ratio": ratio }),
+        Event::TerrainReset {
+            from_m: before,
+            to_m: h_meas,
+            test_ratio: ratio,
+        },
     );
 }
 
