@@ -1,5 +1,6 @@
 //! Facade tests over the simulator (crate::sim) and constructed sequences.
 
+use super::ekf::GRAVITY;
 use super::*;
 use crate::geo::LocalEnu;
 use crate::sample::{
@@ -8,7 +9,7 @@ use crate::sample::{
 use crate::sim::sensors::DEMO_STREAMS;
 use crate::sim::truth::{truth, TruthState};
 use crate::sim::Simulator;
-use nalgebra::Vector2;
+use nalgebra::{UnitQuaternion, Vector2};
 
 fn sim_samples(seed: u64, duration_s: f64) -> (Vec<(Sample, TruthState)>, LocalEnu) {
     let sim = Simulator::new(DEMO_STREAMS, seed, duration_s);

@@ -1,0 +1,799 @@
+//! The filter's evolving state ([`Core`]: everything that changes with the samples,
+//! snapshotted for late measurements) and the shared verbs the sensor modules use on
+//! it: gating and recording updates, events, aiding, validity, initialisation.
+
+use super::attitude::{self, AttitudeState};
+use super::ekf::{self, dmat3, dvec, Ekf, UpdateOutcome, GRAVITY, IDX_P, IDX_V};
+use super::flow::{self, FlowCalibrator, FlowState};
+use super::gnss::{self, GnssState};
+use super::ground;
+use super::imu::{self, ImuState};
+use super::monitor::{MonitorReset, Monitors};
+use super::odometry::{self, OdomState};
+use super::range;
+use super::wrls::Wrls;
+use super::{DebugSeries, DebugTopic, EstimatorConfig, EstimatorEvent, Event, Mode, SourceStatus};
+use crate::event;
+use crate::sample::{SensorData, SensorKind};
+use nalgebra::{DMatrix, Matrix3, Vector3};
+use std::collections::BTreeMap;
+
+/// Read-only context of one processing step.
+pub(crate) struct Ctx<'a> {
+    pub cfg: &'a EstimatorConfig,
+    pub usable: &'a BTreeMap<String, (bool, String)>,
+    pub gates: [f64; 7],
+}
+
+impl Ctx<'_> {
+    pub(super) fn gate(&self, dof: usize) -> f64 {
+        self.gates[dof.min(6)]
+    }
+    pub(super) fn usable(&self, source: &str) -> bool {
+        self.usable.get(source).is_none_or(|u| u.0)
+    }
+}
+
+pub(super) fn kind_str(k: SensorKind) -> &'static str {
+    k.as_str()
+}
+
+/// Everything that evolves with the samples (snapshotted for late measurements).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Core {
+    pub t: Option<i64>,
+    pub pred_t: Option<i64>,
+    pub ekf: Option<Ekf>,
+    pub att: AttitudeState,
+    pub imu: ImuState,
+    pub gnss: GnssState,
+    pub odom: BTreeMap<String, OdomState>,
+    pub flow: BTreeMap<String, FlowState>,
+    pub flow_cal: FlowCalibrator,
+    /// Latest range per source: (time, slant distance).
+    pub range: BTreeMap<String, (i64, f64)>,
+    /// On the ground / at rest, and the constraints without horizontal aiding.
+    pub ground: ground::GroundState,
+    pub wrls: Wrls,
+    pub wrls_ekf_last: Option<i64>,
+    pub monitors: Monitors,
+    pub reset_counter: u8,
+    pub stats: BTreeMap<String, SourceStatus>,
+    pub debug: DebugSeries,
+    pub events: Vec<EstimatorEvent>,
+    pub throttle: BTreeMap<String, i64>,
+    pub last_aiding: Option<i64>,
+    /// Last horizontal aiding, real or the ground constraint (validity).
+    pub last_h_valid: Option<i64>,
+    /// Since when the estimate has been dead-reckoning (no position source beyond the
+    /// aiding timeout); cleared when an absolute position source takes hold again.
+    pub unaided_since: Option<i64>,
+    pub used_set: Vec<String>,
+    pub mode_wrls: bool,
+    pub mode_ekf_direct: bool,
+    pub wrls_period_s: f64,
+}
+
+pub(super) const AIDING: [&str; 4] = ["gnss", "odometry", "flow", "range"];
+/// The aiding sources that hold the horizontal position or velocity.
+pub(super) const HORIZONTAL_AIDING: [&str; 3] = ["gnss", "odometry", "flow"];
+
+impl Core {
+    pub(super) fn new(cfg: &EstimatorConfig) -> Self {
+        Self {
+            mode_wrls: cfg.mode == Mode::Wrls,
+            mode_ekf_direct: cfg.mode == Mode::Ekf,
+            wrls_period_s: cfg.wrls_period_ms * 1e-3,
+            ..Self::default()
+        }
+    }
+
+    pub fn initialised(&self) -> bool {
+        if self.mode_wrls {
+            self.wrls.x.is_some()
+        } else {
+            self.ekf.is_some()
+        }
+    }
+
+    pub fn position(&self) -> Option<Vector3<f64>> {
+        if self.mode_wrls {
+            self.wrls.x
+        } else {
+            self.ekf.as_ref().map(|e| e.pos())
+        }
+    }
+
+    pub fn velocity(&self) -> Option<Vector3<f64>> {
+        if self.mode_wrls {
+            self.wrls
+                .x
+                .map(|_| self.wrls.last_delta / self.wrls_period_s())
+        } else {
+            self.ekf.as_ref().map(|e| e.vel())
+        }
+    }
+
+    pub(super) fn wrls_period_s(&self) -> f64 {
+        self.wrls_period_s.max(1e-6)
+    }
+
+    pub fn ekf_fuses_sensors(&self, _ctx: &Ctx) -> bool {
+        self.mode_ekf_direct
+    }
+
+    pub fn event(&mut self, t: i64, source: Option<&str>, message: String, what: Event) {
+        self.events
+            .push(EstimatorEvent::new(t, source, message, what));
+    }
+
+    pub(super) fn throttled_event(
+        &mut self,
+        t: i64,
+        source: &str,
+        message: String,
+        what: Event,
+        ctx: &Ctx,
+    ) {
+        let key = format!("{}/{source}", what.kind());
+        let every = (ctx.cfg.event_throttle_ms * 1000.0) as i64;
+        if self
+            .throttle
+            .get(&key)
+            .is_some_and(|&l| t - l < every && t >= l)
+        {
+            return;
+        }
+        self.throttle.insert(key, t);
+        self.event(t, Some(source), message, what);
+    }
+
+    /// A sample failed its checks.
+    pub fn reject(&mut self, t: i64, source: &str, why: &str, ctx: &Ctx) {
+        let st = self.stats.entry(source.to_string()).or_default();
+        st.last_time_us = Some(t);
+        st.last_reject_reason = Some(why.to_string());
+        self.throttled_event(
+            t,
+            source,
+            format!("{source}: {why}"),
+            Event::SampleRejected {
+                reason: why.to_string(),
+            },
+            ctx,
+        );
+    }
+
+    pub fn debug_point(&mut self, t: i64, topic: DebugTopic, source: &str, v: Vector3<f64>) {
+        let p = self.debug.series.entry(topic).or_default();
+        p.time_us = t;
+        if p.source != source {
+            p.source = source.to_string();
+        }
+        p.value = [v.x, v.y, v.z];
+    }
+
+    /// A sample arrived that is not a measurement to fuse but was understood (a range
+    /// finder on the ground): seen, neither used nor rejected.
+    pub fn mark_seen(&mut self, t: i64, source: &str, kind: &'static str) {
+        let st = self.stats.entry(source.to_string()).or_default();
+        st.kind = kind;
+        st.last_time_us = Some(t);
+    }
+
+    /// A non-aiding source (IMU, attitude) contributed.
+    pub fn mark_used(&mut self, t: i64, source: &str) {
+        let st = self.stats.entry(source.to_string()).or_default();
+        st.last_time_us = Some(t);
+        st.last_fused_us = Some(t);
+        st.accepted += 1;
+    }
+
+    pub(super) fn mark_aiding(&mut self, t: i64, source: &str, kind: &'static str) {
+        let st = self.stats.entry(source.to_string()).or_default();
+        st.kind = kind;
+        st.last_time_us = Some(t);
+        st.last_fused_us = Some(t);
+        st.accepted += 1;
+        self.aided(t, kind);
+    }
+
+    /// An aiding measurement of `kind` went in at `t` (the ground constraint counts as
+    /// horizontal aiding for validity, never for releasing itself).
+    pub(super) fn aided(&mut self, t: i64, kind: &str) {
+        self.last_aiding = Some(t);
+        if HORIZONTAL_AIDING.contains(&kind) {
+            self.ground.last_h_aiding = Some(t);
+        }
+        if HORIZONTAL_AIDING.contains(&kind) || kind == "ground" {
+            self.last_h_valid = Some(t);
+        }
+    }
+
+    pub(super) fn record(
+        &mut self,
+        t: i64,
+        source: &str,
+        kind: &'static str,
+        out: &UpdateOutcome,
+        ctx: &Ctx,
+    ) {
+        let st = self.stats.entry(source.to_string()).or_default();
+        let same_sample = st.last_time_us == Some(t);
+        st.kind = kind;
+        st.last_time_us = Some(t);
+        if !same_sample || out.test_ratio > st.test_ratio {
+            st.test_ratio = out.test_ratio;
+            st.innovation = out.innovation.clone();
+            st.innovation_var = out.innovation_var.clone();
+        }
+        if out.accepted {
+            st.accepted += 1;
+            st.last_fused_us = Some(t);
+            if AIDING.contains(&kind) {
+                self.aided(t, kind);
+            }
+        } else {
+            st.rejected += 1;
+            st.last_reject_reason = Some(format!("innovation gate, ratio {:.2}", out.test_ratio));
+            let ratio = out.test_ratio;
+            self.throttled_event(
+                t,
+                source,
+                format!("{source}: innovation test ratio {ratio:.2} > 1, measurement rejected"),
+                Event::GateReject {
+                    test_ratio: ratio,
+                    innovation: out.innovation.clone(),
+                },
+                ctx,
+            );
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn update(
+        &mut self,
+        t: i64,
+        source: &str,
+        kind: &'static str,
+        y: DMatrix<f64>,
+        h: DMatrix<f64>,
+        r: DMatrix<f64>,
+        ctx: &Ctx,
+    ) -> bool {
+        let Some(ekf) = self.ekf.as_mut() else {
+            return false;
+        };
+        let dof = y.nrows();
+        let y = dvec(y.as_slice());
+        let out = ekf.update(&y, &h, &r, ctx.gate(dof), false);
+        let ok = out.accepted;
+        self.record(t, source, kind, &out, ctx);
+        ok
+    }
+
+    /// The innovation of a position measurement: (y, H), or None without a filter.
+    pub(super) fn position_innovation(
+        &self,
+        kind: &'static str,
+        z: Vector3<f64>,
+        block: Option<&str>,
+    ) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+        let ekf = self.ekf.as_ref()?;
+        let n = ekf.n();
+        let mut h = ekf::h_pos(n);
+        let mut pred = ekf.pos();
+        if kind == "gnss" {
+            for i in 0..3 {
+                h[(i, ekf::IDX_BG + i)] = 1.0;
+                pred[i] += ekf.x[ekf::IDX_BG + i];
+            }
+        }
+        if let Some(b) = block.and_then(|s| ekf.block(s)) {
+            for i in 0..3 {
+                h[(i, b + i)] = 1.0;
+                pred[i] += ekf.x[b + i];
+            }
+        }
+        let y = z - pred;
+        Some((DMatrix::from_column_slice(3, 1, y.as_slice()), h))
+    }
+
+    /// Fuse a world position (GNSS) or an odometry position (`block` = its offset).
+    #[allow(clippy::too_many_arguments)]
+    pub fn fuse_position(
+        &mut self,
+        t: i64,
+        source: &str,
+        kind: &'static str,
+        z: Vector3<f64>,
+        r: &Matrix3<f64>,
+        block: Option<&str>,
+        ctx: &Ctx,
+    ) -> bool {
+        if !self.mode_ekf_direct {
+            self.mark_aiding(t, source, kind);
+            return true;
+        }
+        let Some((y, h)) = self.position_innovation(kind, z, block) else {
+            return false;
+        };
+        self.update(t, source, kind, y, h, dmat3(r), ctx)
+    }
+
+    /// The innovation test of a position measurement from a source the health layer
+    /// has taken out: computed on a copy, never fused, so health can see when the
+    /// source agrees again (otherwise a rejected source could never come back).
+    pub fn probe_position(
+        &mut self,
+        t: i64,
+        source: &str,
+        kind: &'static str,
+        z: Vector3<f64>,
+        r: &Matrix3<f64>,
+        ctx: &Ctx,
+    ) {
+        let Some((y, h)) = self.position_innovation(kind, z, None) else {
+            return;
+        };
+        let Some(mut probe) = self.ekf.clone() else {
+            return;
+        };
+        let dof = y.nrows();
+        let out = probe.update(&dvec(y.as_slice()), &h, &dmat3(r), ctx.gate(dof), false);
+        let st = self.stats.entry(source.to_string()).or_default();
+        st.kind = kind;
+        st.last_time_us = Some(t);
+        st.test_ratio = out.test_ratio;
+        st.innovation = out.innovation;
+        st.innovation_var = out.innovation_var;
+    }
+
+    pub fn fuse_world_velocity(
+        &mut self,
+        t: i64,
+        source: &str,
+        v: Vector3<f64>,
+        r: &Matrix3<f64>,
+        ctx: &Ctx,
+    ) {
+        if !self.mode_ekf_direct {
+            return;
+        }
+        let Some(ekf) = self.ekf.as_ref() else { return };
+        let n = ekf.n();
+        let mut h = DMatrix::zeros(3, n);
+        for i in 0..3 {
+            h[(i, IDX_V + i)] = 1.0;
+        }
+        let y = v - ekf.vel();
+        let y = DMatrix::from_column_slice(3, 1, y.as_slice());
+        self.update(t, source, "gnss", y, h, dmat3(r), ctx);
+    }
+
+    /// Fuse the first `rows` components of a body-frame velocity.
+    pub fn fuse_body_velocity(
+        &mut self,
+        t: i64,
+        source: &str,
+        vb: Vector3<f64>,
+        r: &mut Matrix3<f64>,
+        rows: usize,
+        ctx: &Ctx,
+    ) {
+        if !self.mode_ekf_direct {
+            if rows == 2 {
+                self.mark_aiding(t, source, "flow");
+            }
+            return;
+        }
+        let Some(ekf) = self.ekf.as_ref() else { return };
+        let rot = *self.att.q.to_rotation_matrix().matrix();
+        let pred = rot.transpose() * ekf.vel();
+        // Attitude error turns the velocity: |v|²·σ² per axis.
+        let att_var = ekf.vel().norm_squared() * self.att.cov.trace() / 3.0;
+        let h = odometry::h_body_velocity(ekf.n(), &rot, rows);
+        let mut y = DMatrix::zeros(rows, 1);
+        let mut rr = DMatrix::zeros(rows, rows);
+        for i in 0..rows {
+            y[(i, 0)] = vb[i] - pred[i];
+            for j in 0..rows {
+                rr[(i, j)] = r[(i, j)];
+            }
+            rr[(i, i)] += att_var;
+            r[(i, i)] += att_var;
+        }
+        let kind = if rows == 2 { "flow" } else { "odometry" };
+        self.update(t, source, kind, y, h, rr, ctx);
+    }
+
+    /// Fuse a height above the terrain: h = p_z − z_t.
+    pub fn fuse_height(&mut self, t: i64, source: &str, z: f64, var: f64, ctx: &Ctx) {
+        if !self.mode_ekf_direct {
+            self.mark_aiding(t, source, "range");
+            return;
+        }
+        let Some(ekf) = self.ekf.as_ref() else { return };
+        let mut h = DMatrix::zeros(1, ekf.n());
+        h[(0, IDX_P + 2)] = 1.0;
+        h[(0, ekf::IDX_TERRAIN)] = -1.0;
+        let y = DMatrix::from_element(1, 1, z - (ekf.x[IDX_P + 2] - ekf.x[ekf::IDX_TERRAIN]));
+        let r = DMatrix::from_element(1, 1, var);
+        self.update(t, source, "range", y, h, r, ctx);
+    }
+
+    /// Latest range-finder slant distance (within 200 ms).
+    pub fn latest_range(&self, t: i64) -> Option<f64> {
+        self.range
+            .values()
+            .filter(|(tr, _)| (t - tr).abs() < 200_000)
+            .max_by_key(|(tr, _)| *tr)
+            .map(|&(_, d)| d)
+    }
+
+    pub fn latest_height(&self, t: i64) -> Option<f64> {
+        self.latest_range(t)
+            .map(|d| d * attitude::cos_tilt(&self.att.q))
+    }
+
+    /// A range finder was fused (or is being fed) in the last second.
+    pub fn range_recent(&self, t: i64, ctx: &Ctx) -> bool {
+        self.range
+            .iter()
+            .any(|(s, (tr, _))| t - tr < 1_000_000 && ctx.usable(s))
+    }
+
+    /// Another position/velocity source than `source` was fused within the timeout.
+    pub fn other_aiding(&self, t: i64, source: &str, ctx: &Ctx) -> bool {
+        let timeout = (ctx.cfg.aiding_timeout_ms * 1000.0) as i64;
+        self.stats.iter().any(|(s, st)| {
+            s != source
+                && matches!(st.kind, "gnss" | "odometry")
+                && st.last_fused_us.is_some_and(|f| t - f <= timeout)
+        })
+    }
+
+    /// Heading from an odometry source in the fused frame (for the own attitude filter).
+    pub fn odometry_heading(&self) -> Option<f64> {
+        let t = self.t?;
+        self.odom
+            .values()
+            .filter_map(|o| o.heading)
+            .filter(|(th, _)| t - th < 200_000)
+            .max_by_key(|(th, _)| *th)
+            .map(|(_, y)| y)
+    }
+
+    /// Feed a gyro sample into every flow source's low-pass.
+    pub fn flow_gyro_sample(&mut self, t: i64, w: Vector3<f64>, ctx: &Ctx) {
+        for (s, st) in self.flow.iter_mut() {
+            let hz = ctx.cfg.source(s).gyro_lpf_hz;
+            st.lpf.update(w, t, hz);
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub fn initialise(
+        &mut self,
+        t: i64,
+        source: &str,
+        pos: Vector3<f64>,
+        pos_var: Vector3<f64>,
+        vel: Option<Vector3<f64>>,
+        vel_var: Option<f64>,
+        ctx: &Ctx,
+    ) {
+        let cfg = ctx.cfg;
+        let vv = vel_var.unwrap_or(cfg.init_vel_var);
+        if !self.mode_wrls {
+            let mut ekf = Ekf::new(
+                pos,
+                vel.unwrap_or_else(Vector3::zeros),
+                pos_var,
+                Vector3::repeat(vv),
+                cfg.init_accel_bias_var,
+            );
+            ekf.terrain_rw = cfg.terrain_rw;
+            let (b, bv) = (cfg.gnss_bias_std_m, cfg.gnss_bias_std_v_m);
+            ekf.set_gnss_bias_model(Vector3::new(b, b, bv), cfg.gnss_bias_tau_s);
+            if self.stats.get(source).is_some_and(|s| s.kind == "gnss")
+                || self.gnss.origin.is_some()
+            {
+                // Started from a fix: the ground's height in that frame is as uncertain
+                // as the fix's altitude.
+                ekf.p[(ekf::IDX_TERRAIN, ekf::IDX_TERRAIN)] = pos_var.z;
+            }
+            self.ekf = Some(ekf);
+        }
+        self.pred_t = Some(t);
+        self.wrls.init(t, pos, pos_var);
+        self.last_aiding = Some(t);
+        self.last_h_valid = Some(t);
+        if source != "ground" {
+            self.ground.last_h_aiding = Some(t);
+        }
+        self.event(
+            t,
+            Some(source),
+            format!(
+                "filter initialised from {source} at ({:.2}, {:.2}, {:.2})",
+                pos.x, pos.y, pos.z
+            ),
+            Event::Initialised {
+                position: pos.into(),
+            },
+        );
+    }
+
+    /// Advance WRLS ticks and the prediction to `t`.
+    pub(super) fn advance(&mut self, t: i64, ctx: &Ctx) {
+        let cfg = ctx.cfg;
+        let period_us = (cfg.wrls_period_ms * 1000.0) as i64;
+        let outs = self.wrls.tick(t, period_us, cfg.wrls_no_delta_var);
+        for o in outs {
+            self.debug_point(o.t, DebugTopic::FusionDisplace, "wrls", o.delta);
+            if self.mode_wrls {
+                self.debug_point(o.t, DebugTopic::PoseMsg, "wrls", o.x);
+            }
+            if cfg.mode == Mode::WrlsEkf && self.ekf.is_some() {
+                let every = (1e6 / cfg.wrls_ekf_rate_hz.max(1e-3)) as i64;
+                if self.wrls_ekf_last.is_none_or(|l| o.t - l >= every) {
+                    self.wrls_ekf_last = Some(o.t);
+                    self.predict_to(o.t, ctx);
+                    if let Some(ekf) = self.ekf.as_ref() {
+                        let h = ekf::h_pos(ekf.n());
+                        let y = o.x - ekf.pos();
+                        let y = DMatrix::from_column_slice(3, 1, y.as_slice());
+                        let r = dmat3(&Matrix3::from_diagonal(&o.var));
+                        self.update(o.t, "wrls", "gnss", y, h, r, ctx);
+                    }
+                }
+            }
+        }
+        self.predict_to(t, ctx);
+    }
+
+    pub(super) fn predict_to(&mut self, t: i64, ctx: &Ctx) {
+        let cfg = ctx.cfg;
+        let Some(t0) = self.pred_t else { return };
+        if t <= t0 {
+            return;
+        }
+        let dt = (t - t0) as f64 * 1e-6;
+        self.pred_t = Some(t);
+        let rot = *self.att.q.to_rotation_matrix().matrix();
+        let imu_timeout = (cfg.imu_timeout_ms * 1000.0) as i64;
+        let tilt_var = 0.5 * (self.att.cov[(0, 0)] + self.att.cov[(1, 1)]);
+        let held = self
+            .imu
+            .last
+            .as_ref()
+            .filter(|l| t - l.t <= imu_timeout)
+            .and_then(|l| l.accel.map(|a| (a, l.accel_var)));
+        let bias_rw = cfg.accel_bias_rw;
+        let drift: Vec<f64> = self
+            .ekf
+            .as_ref()
+            .map(|e| {
+                e.blocks
+                    .iter()
+                    .map(|(s, _)| cfg.source(s).drift_rw.unwrap_or(cfg.vo_drift_rw))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let (f_body, var) = match held {
+            Some((a, v)) if self.att.known() => (a, v + GRAVITY * GRAVITY * tilt_var),
+            _ => {
+                let ba = self
+                    .ekf
+                    .as_ref()
+                    .map_or(Vector3::zeros(), |e| e.accel_bias());
+                (
+                    rot.transpose() * Vector3::new(0.0, 0.0, GRAVITY) + ba,
+                    cfg.no_imu_accel_noise.powi(2),
+                )
+            }
+        };
+        let ba = self
+            .ekf
+            .as_ref()
+            .map_or(Vector3::zeros(), |e| e.accel_bias());
+        let a_world = rot * (f_body - ba) - Vector3::new(0.0, 0.0, GRAVITY);
+        self.monitors.predict(a_world, dt);
+        if let Some(ekf) = self.ekf.as_mut() {
+            ekf.predict(f_body, &rot, dt, var, bias_rw, &drift);
+        }
+    }
+
+    pub(super) fn process_entry(&mut self, t: i64, source: &str, data: &SensorData, ctx: &Ctx) {
+        if !ctx.usable(source) {
+            if let SensorData::Gnss(g) = data {
+                gnss::probe(self, ctx, t, source, g);
+            }
+            return;
+        }
+        self.advance(t, ctx);
+        match data {
+            SensorData::Imu(i) => imu::process(self, ctx, t, source, i),
+            SensorData::Attitude(a) => imu::process_attitude(self, ctx, t, source, a),
+            SensorData::Gnss(g) => gnss::process(self, ctx, t, source, g),
+            SensorData::Flow(f) => flow::process(self, ctx, t, source, f),
+            SensorData::Range(r) => range::process(self, ctx, t, source, r),
+            SensorData::Odometry(o) => odometry::process(self, ctx, t, source, o),
+            SensorData::VehicleState(v) => ground::process_vehicle_state(self, t, source, v),
+            SensorData::AutopilotEstimate(_) => {}
+        }
+        if let Some(st) = self.stats.get_mut(source) {
+            if st.kind.is_empty() {
+                st.kind = kind_str(data.kind());
+            }
+        }
+        self.t = Some(self.t.map_or(t, |t0| t0.max(t)));
+        self.post(t, ctx);
+    }
+
+    pub(super) fn post(&mut self, t: i64, ctx: &Ctx) {
+        let cfg = ctx.cfg;
+        ground::control(self, ctx, t);
+        let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
+        if self.unaided_since.is_none() && self.initialised() {
+            if let Some(l) = self.last_aiding.filter(|l| t - l > timeout) {
+                self.unaided_since = Some(l);
+            }
+        }
+        if let Some(ekf) = self.ekf.as_ref() {
+            if !ekf.is_finite() {
+                self.ekf = None;
+                self.wrls = Wrls::default();
+                for st in self.odom.values_mut() {
+                    st.align = None;
+                }
+                self.reset_counter = self.reset_counter.wrapping_add(1);
+                self.event(
+                    t,
+                    None,
+                    "numerical failure (non-finite state): filter restarted".into(),
+                    Event::Reset(event::Reset::Restart {
+                        reset_counter: self.reset_counter,
+                    }),
+                );
+                return;
+            }
+        }
+        if let (Some(p), Some(v)) = (self.position(), self.velocity()) {
+            if let Some(r) = self.monitors.check(t, p, v, cfg) {
+                self.apply_monitor_reset(t, r, ctx);
+            }
+            if !self.mode_wrls {
+                self.debug_point(t, DebugTopic::PoseMsg, "ekf", p);
+            }
+        }
+        let used = self.used_sources(t, cfg);
+        if used != self.used_set {
+            let added: Vec<String> = used
+                .iter()
+                .filter(|s| !self.used_set.contains(s))
+                .cloned()
+                .collect();
+            let removed: Vec<String> = self
+                .used_set
+                .iter()
+                .filter(|s| !used.contains(s))
+                .cloned()
+                .collect();
+            let msg = format!("sources now {used:?} (added {added:?}, removed {removed:?})");
+            let what = Event::SourceSwitch(event::SourceSwitch::Fused {
+                sources: used.clone(),
+                added,
+                removed,
+            });
+            self.event(t, None, msg, what);
+            self.used_set = used;
+        }
+    }
+
+    pub(super) fn apply_monitor_reset(&mut self, t: i64, r: MonitorReset, ctx: &Ctx) {
+        let cfg = ctx.cfg;
+        let Some(p) = self.position() else { return };
+        let v = self.velocity().unwrap_or_else(Vector3::zeros);
+        let (pos, vel) = if r.horizontal_only {
+            (
+                Vector3::new(r.position.x, r.position.y, p.z),
+                Vector3::new(r.velocity.x, r.velocity.y, v.z),
+            )
+        } else {
+            (r.position, r.velocity)
+        };
+        let zvar = self.ekf.as_ref().map_or(cfg.reset_pos_var, |e| e.p[(2, 2)]);
+        let pos_var = if r.horizontal_only {
+            Vector3::new(cfg.reset_pos_var, cfg.reset_pos_var, zvar)
+        } else {
+            Vector3::repeat(cfg.reset_pos_var)
+        };
+        if let Some(ekf) = self.ekf.as_mut() {
+            ekf.reset_pos_vel(pos, Some(vel), pos_var, cfg.reset_vel_var);
+        }
+        self.wrls.reset(pos, pos_var);
+        for st in self.odom.values_mut() {
+            st.need_realign = true;
+        }
+        self.reset_counter = self.reset_counter.wrapping_add(1);
+        let from = [p.x, p.y, p.z];
+        let to = [pos.x, pos.y, pos.z];
+        self.event(
+            t,
+            None,
+            format!("reset to the {} monitor: {}", r.monitor, r.reason),
+            Event::MonitorReset(event::MonitorReset {
+                monitor: r.monitor,
+                reason: r.reason.clone(),
+                from,
+                to,
+                position_departure_m: r.pos_err,
+                velocity_departure_mps: r.vel_err,
+                reset_counter: self.reset_counter,
+            }),
+        );
+    }
+
+    pub(super) fn used_sources(&self, t: i64, cfg: &EstimatorConfig) -> Vec<String> {
+        let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
+        self.stats
+            .iter()
+            .filter(|(_, st)| st.last_fused_us.is_some_and(|f| t - f <= timeout))
+            .map(|(s, _)| s.clone())
+            .collect()
+    }
+
+    /// Why the estimate is not valid at time `now` (None: valid). `now` is at least the
+    /// newest sample's time, later when the caller has seen time pass without samples.
+    pub(super) fn validity(&self, cfg: &EstimatorConfig, now: Option<i64>) -> Option<String> {
+        if !self.initialised() {
+            return Some("not initialised".into());
+        }
+        let t = self.t.unwrap_or(0).max(now.unwrap_or(i64::MIN));
+        if let Some(ekf) = self.ekf.as_ref() {
+            if !ekf.is_finite() {
+                return Some("non-finite state".into());
+            }
+        }
+        if !self.att.known() {
+            return Some("no attitude".into());
+        }
+        let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
+        match self.last_aiding {
+            Some(l) if t - l <= timeout => {}
+            _ => {
+                return Some(format!(
+                    "no position or velocity source fused for more than {} ms",
+                    cfg.aiding_timeout_ms
+                ))
+            }
+        }
+        if self.ground.handled(t) {
+            return Some("disarmed but moving (carried by hand): not valid until set down".into());
+        }
+        // A height alone (a range finder) leaves the horizontal position dead-reckoned.
+        match self.last_h_valid {
+            Some(l) if t - l <= timeout => {}
+            _ => {
+                return Some(format!(
+                    "no horizontal position or velocity source fused for more than {} ms",
+                    cfg.aiding_timeout_ms
+                ))
+            }
+        }
+        let var = match (&self.ekf, self.mode_wrls) {
+            (Some(e), false) => e.cov3(IDX_P).diagonal(),
+            _ => self.wrls.var,
+        };
+        let max = cfg.max_pos_std_m * cfg.max_pos_std_m;
+        if var.iter().any(|v| !v.is_finite() || *v > max) {
+            return Some(format!(
+                "position uncertainty above {} m (1σ)",
+                cfg.max_pos_std_m
+            ));
+        }
+        None
+    }
+}

@@ -1,0 +1,173 @@
+//! What the estimator tells the world: the fused pose, its debug series and its
+//! status (the service's `/api/v1/status` `estimator`, the replay's summary).
+
+use super::CalState;
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// The fused estimate.
+#[derive(Clone, Debug, Serialize)]
+pub struct FusedPose {
+    /// Host clock, µs: the time the estimate refers to.
+    pub time_us: i64,
+    /// ENU, m.
+    pub position: Vector3<f64>,
+    pub velocity: Vector3<f64>,
+    /// Body FLU → ENU.
+    pub orientation: UnitQuaternion<f64>,
+    pub angular_velocity: Option<Vector3<f64>>,
+    pub position_cov: Matrix3<f64>,
+    pub velocity_cov: Matrix3<f64>,
+    /// rad², roll/pitch/yaw small-angle.
+    pub orientation_cov: Matrix3<f64>,
+    pub sources: Vec<String>,
+    /// Wraps, MAVLink style.
+    pub reset_counter: u8,
+    pub valid: bool,
+    pub invalid_reason: Option<String>,
+    /// Geodetic (lat, lon, alt) of the ENU origin if GNSS set it.
+    pub origin: Option<(f64, f64, f64)>,
+}
+
+/// The estimator's debug series: the seed's rqt_plot topics (named as the seed names
+/// them) and a few more the dashboard plots.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum DebugTopic {
+    /// Raw flow rate (rad/s).
+    OfData,
+    /// Flow rate after rotation compensation (rad/s).
+    CompensatedOf,
+    /// The gyro as the flow compensation used it (low-passed, clamped).
+    FlowGyro,
+    /// Flow displacement integrated (m).
+    OfSum,
+    /// Flow displacement per fusion step (m).
+    OriginDOf,
+    /// Odometry position in the fused frame, and its step.
+    OriUavT265,
+    OriginDt265,
+    /// GNSS position in the fused frame, and its step.
+    OriUavGps,
+    OriginDgps,
+    /// The fused pose's step.
+    FusionDisplace,
+    /// The fused position.
+    PoseMsg,
+    ImuAngularVelocity,
+}
+
+impl DebugTopic {
+    /// Published on Zenoh as geometry_msgs/PointStamped under `ros2_debug_prefix`.
+    pub const PUBLISHED: [DebugTopic; 8] = [
+        DebugTopic::CompensatedOf,
+        DebugTopic::OfSum,
+        DebugTopic::OriUavT265,
+        DebugTopic::OriUavGps,
+        DebugTopic::OriginDOf,
+        DebugTopic::OriginDt265,
+        DebugTopic::OriginDgps,
+        DebugTopic::FusionDisplace,
+    ];
+    /// Accumulated position per source (the dashboard's `sources`).
+    pub const POSITIONS: [DebugTopic; 3] = [
+        DebugTopic::OriUavGps,
+        DebugTopic::OriUavT265,
+        DebugTopic::OfSum,
+    ];
+    /// Per-step displacement per source and of the fused pose (the dashboard's `deltas`).
+    pub const DELTAS: [DebugTopic; 4] = [
+        DebugTopic::OriginDgps,
+        DebugTopic::OriginDt265,
+        DebugTopic::OriginDOf,
+        DebugTopic::FusionDisplace,
+    ];
+
+    /// The seed's name (the Zenoh key's last part).
+    pub fn name(self) -> &'static str {
+        match self {
+            DebugTopic::OfData => "OF_data",
+            DebugTopic::CompensatedOf => "compensated_OF",
+            DebugTopic::FlowGyro => "flow_gyro",
+            DebugTopic::OfSum => "OF_sum",
+            DebugTopic::OriginDOf => "origin_dOF",
+            DebugTopic::OriUavT265 => "oriUAV_t265",
+            DebugTopic::OriginDt265 => "origin_dt265",
+            DebugTopic::OriUavGps => "oriUAV_gps",
+            DebugTopic::OriginDgps => "origin_dgps",
+            DebugTopic::FusionDisplace => "fusion_displace",
+            DebugTopic::PoseMsg => "pose_msg",
+            DebugTopic::ImuAngularVelocity => "imu_angular_velocity",
+        }
+    }
+}
+
+impl Serialize for DebugTopic {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
+    }
+}
+
+/// One point of a debug series (the seed's rqt_plot topics).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct DebugPoint {
+    pub time_us: i64,
+    pub source: String,
+    pub value: [f64; 3],
+}
+
+/// The latest point per topic.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct DebugSeries {
+    pub series: BTreeMap<DebugTopic, DebugPoint>,
+}
+
+/// Per-source state for the status API and the health layer.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct SourceStatus {
+    pub kind: &'static str,
+    pub last_time_us: Option<i64>,
+    pub last_fused_us: Option<i64>,
+    pub innovation: Vec<f64>,
+    pub innovation_var: Vec<f64>,
+    pub test_ratio: f64,
+    pub accepted: u64,
+    pub rejected: u64,
+    pub last_reject_reason: Option<String>,
+    pub usable: bool,
+    pub segment: Option<u32>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct CalibrationStatus {
+    pub state: CalState,
+    pub source: Option<String>,
+    pub samples: [usize; 2],
+    pub result: Option<[f64; 2]>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct EstimatorStatus {
+    pub mode: &'static str,
+    pub initialised: bool,
+    pub valid: bool,
+    pub invalid_reason: Option<String>,
+    pub time_us: Option<i64>,
+    pub origin: Option<(f64, f64, f64)>,
+    pub reset_counter: u8,
+    pub sources_used: Vec<String>,
+    pub attitude_source: &'static str,
+    pub covariance_trace: Option<f64>,
+    pub position_std: Option<[f64; 3]>,
+    pub accel_bias: Option<[f64; 3]>,
+    pub gyro_bias: [f64; 3],
+    pub sources: BTreeMap<String, SourceStatus>,
+    pub calibration: CalibrationStatus,
+    pub monitor: Option<(&'static str, f64, f64)>,
+    pub history_len: usize,
+    pub late_dropped: u64,
+    pub clock_offsets_us: BTreeMap<String, i64>,
+    /// Sources whose stamps do not run at the host's rate (measured rate), timed by
+    /// arrival instead (see `timing`).
+    pub timed_by_arrival: BTreeMap<String, f64>,
+}
