@@ -1,0 +1,1007 @@
+//! PX4 flight logs → samples for offline replay: a ULog file read directly (PX4's own
+//! `px4-ulog` crate), or the per-topic CSV export of pyulog's `ulog2csv` (a directory of
+//! `<topic>_<instance>.csv`, each optionally gzip-compressed as `.csv.gz`). Both become
+//! the same rows of named fields (`timestamp` in µs since boot; unknown values NaN),
+//! mapped once.
+//!
+//! | topic (PX4 1.12 – 1.15)                         | source          | sample |
+//! |-------------------------------------------------|-----------------|--------|
+//! | `sensor_combined`                               | `imu`           | [`Imu`] (gyro, accel) |
+//! | `vehicle_attitude`                              | `attitude`      | [`Attitude`]; rates from `vehicle_angular_velocity` |
+//! | `sensor_gps` / `vehicle_gps_position`           | `gps`           | [`GnssFix`] (1e-7° or 1.15's degrees) |
+//! | `distance_sensor`                               | `range`         | [`Range`] |
+//! | `vehicle_optical_flow` / `optical_flow`         | `flow`          | [`OpticalFlow`] |
+//! | `vehicle_visual_odometry`                       | `vio`           | [`Odometry`] (≤ 1.13 and ≥ 1.14 layouts) |
+//! | `vehicle_local_position`                        | `ekf2`          | [`AutopilotEstimate`] (comparison only) |
+//! | `vehicle_land_detected`, `actuator_armed`       | `land_detected`, `armed` | [`VehicleState`] |
+//! | `vehicle_imu`, `estimator_states`               | `vehicle_imu`, `attitude_states` | low-rate IMU and EKF2 quaternion |
+//!
+//! Instance `i` > 0 gets `_i` (`optical_flow_1` → `flow_1`). Stand-ins, used only where
+//! the real topic is absent and listed in [`Px4Log::stand_ins`]: `vehicle_imu` as `imu`
+//! without `sensor_combined`; EKF2's heading (`vehicle_local_position`) tilted as its
+//! nearest quaternion (`estimator_states`, which it then replaces) as `attitude` without
+//! `vehicle_attitude`; EKF2's flow gyro (`estimator_optical_flow_vel`)
+//! for flow samples without a gyro. A topic of the wanted set that is absent is listed
+//! in [`Px4Log::missing`], not fatal. The barometer (`vehicle_air_data`) is not read:
+//! the estimator has no barometer input.
+//!
+//! Conventions, as `crate::sample` fixes them: NED/FRD in, ENU/FLU out, SI units.
+//! `stamp_us` and `arrival_us` are both the row's `timestamp` (PX4's publication time,
+//! one clock for everything offline). Where a topic also has `timestamp_sample` (the
+//! measurement time) that is earlier: about 1 ms for the EKF2 and IMU topics, but a
+//! median 22 ms (up to 53 ms) for vehicle_visual_odometry, the camera pipeline's delay.
+//!
+//! Rows: one that is malformed (wrong field count, text that is not a number) or that no
+//! sample can be formed from (a non-finite position, a zero integration time) is skipped
+//! and counted in its [`TopicSummary`], the first such error kept. Only a file that
+//! cannot be read, a header without a column we need, or a log with none of the topics
+//! above fails the whole read.
+
+use crate::estimator::attitude::yaw_of;
+use crate::sample::{
+    frames, Attitude, AutopilotEstimate, GnssFix, GnssFixType, Imu, LandedState, Micros, Odometry,
+    OpticalFlow, Range, Sample, SensorData, Tof, VehicleState,
+};
+use nalgebra::{Matrix3, Matrix6, Quaternion, UnitQuaternion, Vector2, Vector3};
+use std::fs::File;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// A replayable log: samples sorted by `stamp_us`, and what each topic contributed.
+#[derive(Debug)]
+pub struct Px4Log {
+    pub samples: Vec<Sample>,
+    /// One entry per topic instance read, in reading order (the tie order of `samples`).
+    pub topics: Vec<TopicSummary>,
+    /// Stand-ins used for absent topics, as sentences.
+    pub stand_ins: Vec<String>,
+    /// Wanted topics the log does not have, as sentences.
+    pub missing: Vec<String>,
+}
+
+/// What one CSV file contributed.
+#[derive(Debug)]
+pub struct TopicSummary {
+    /// File stem, e.g. `optical_flow_1`.
+    pub name: String,
+    /// The sample source its rows became, e.g. `flow_1`.
+    pub source: String,
+    /// Data rows in the file (blank lines not counted).
+    pub rows: usize,
+    /// Rows that produced no sample.
+    pub skipped: usize,
+    /// Why the first skipped row was skipped.
+    pub first_error: Option<Px4LogError>,
+    /// First and last `stamp_us` of the samples it produced.
+    pub span_us: Option<(Micros, Micros)>,
+}
+
+impl TopicSummary {
+    /// Samples this file produced.
+    pub fn samples(&self) -> usize {
+        self.rows - self.skipped
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum Px4LogError {
+    #[error("{}: cannot list the directory: {source}", dir.display())]
+    ListDir {
+        dir: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}: no PX4 topic CSV that replay reads (looked for {looked_for})", dir.display())]
+    NoKnownTopics { dir: PathBuf, looked_for: String },
+    #[error("{}: cannot open: {source}", file.display())]
+    Open {
+        file: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}:{line}: read failed: {source}", file.display())]
+    Io {
+        file: PathBuf,
+        line: usize,
+        source: std::io::Error,
+    },
+    #[error("{}:1: empty file, no header row", file.display())]
+    NoHeader { file: PathBuf },
+    #[error("{}:{line}: not UTF-8", file.display())]
+    NotUtf8 { file: PathBuf, line: usize },
+    #[error("{}: cannot read the ULog: {reason}", file.display())]
+    Ulog { file: PathBuf, reason: String },
+    #[error("{}:1: the header has no column `{column}` (not a PX4 v1.12 to v1.15 layout?)", file.display())]
+    MissingColumn { file: PathBuf, column: String },
+    #[error("{}:{line}:{column}: {found} fields where the header has {expected}", file.display())]
+    ColumnCount {
+        file: PathBuf,
+        line: usize,
+        /// 1-based column of the first missing or extra field.
+        column: usize,
+        expected: usize,
+        found: usize,
+    },
+    #[error("{}:{line}:{column}: `{name}` is {text:?}, not {expected}", file.display())]
+    BadValue {
+        file: PathBuf,
+        line: usize,
+        column: usize,
+        name: String,
+        text: String,
+        expected: &'static str,
+    },
+    #[error("{}:{line}:{column}: `{name}`: {reason}", file.display())]
+    Unusable {
+        file: PathBuf,
+        line: usize,
+        column: usize,
+        name: String,
+        reason: &'static str,
+    },
+}
+
+/// Reads every known topic CSV in `dir` (see the module doc).
+pub fn read_dir(dir: &Path) -> Result<Px4Log, Px4LogError> {
+    read_dir_with_progress(dir, &mut |_, _| {})
+}
+
+/// [`read_dir`], calling `progress(done, total)` as the files are read (about every
+/// 256 KiB, and once at the end with `done == total`).
+pub fn read_dir_with_progress(
+    dir: &Path,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<Px4Log, Px4LogError> {
+    read_topics(find_topic_files(dir)?, progress)
+}
+
+/// Reads a ULog file (`.ulg`) directly; `progress` counts rows.
+pub fn read_ulog_with_progress(
+    file: &Path,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<Px4Log, Px4LogError> {
+    read_topics(ulog_topic_files(file)?, progress)
+}
+
+/// A ULog file or a CSV export directory, whichever `path` is.
+pub fn read_path_with_progress(
+    path: &Path,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<Px4Log, Px4LogError> {
+    if path.is_dir() {
+        read_dir_with_progress(path, progress)
+    } else {
+        read_ulog_with_progress(path, progress)
+    }
+}
+
+fn read_topics(
+    files: Vec<TopicFile>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<Px4Log, Px4LogError> {
+    let total = files.iter().map(TopicFile::weight).sum();
+    let mut prog = Progress {
+        done: 0,
+        total,
+        reported: 0,
+        cb: progress,
+    };
+    let mut samples = Vec::new();
+    let mut topics = Vec::with_capacity(files.len());
+    for f in &files {
+        topics.push(read_topic(f, &mut samples, &mut prog)?);
+    }
+    // Stable: equal stamps keep topic order (the TOPICS order, then instance).
+    samples.sort_by_key(|s| s.stamp_us);
+    let has = |t: &str| files.iter().any(|f| TOPICS[f.order.0].0 == t);
+    let mut stand_ins = Vec::new();
+    attach_angular_velocity(&mut samples);
+    if attach_ekf2_flow_gyro(&mut samples) > 0 {
+        stand_ins.push(
+            "flow gyro: EKF2's (estimator_optical_flow_vel) for flow samples without their own"
+                .to_string(),
+        );
+    }
+    if !has("sensor_combined") && has("vehicle_imu") {
+        rename(&mut samples, "vehicle_imu", "imu");
+        stand_ins.push(
+            "imu: vehicle_imu (logged at a low rate) stands in for sensor_combined (absent)"
+                .to_string(),
+        );
+    }
+    if !has("vehicle_attitude") && attitude_from_ekf2_heading(&mut samples) > 0 {
+        stand_ins.push(
+            "attitude: EKF2's heading (vehicle_local_position) tilted as EKF2's quaternion (estimator_states, logged at a low rate) stands in for vehicle_attitude (absent)"
+                .to_string(),
+        );
+    }
+    let missing = WANTED
+        .iter()
+        .filter(|(_, names)| !names.iter().any(|n| has(n)))
+        .map(|(what, names)| format!("{what}: none of {}", names.join(", ")))
+        .collect();
+    (prog.cb)(prog.total, prog.total);
+    Ok(Px4Log {
+        samples,
+        topics,
+        stand_ins,
+        missing,
+    })
+}
+
+/// Source `from` (and its instances `from_i`) becomes `to` (`to_i`).
+fn rename(samples: &mut [Sample], from: &str, to: &str) {
+    for s in samples.iter_mut() {
+        if let Some(rest) = s.source.strip_prefix(from) {
+            if rest.is_empty() || rest.starts_with('_') {
+                s.source = Arc::from(format!("{to}{rest}"));
+            }
+        }
+    }
+}
+
+/// Takes the rows of an internal rate source out of `samples`: (time, gyro), by time.
+fn take_rates(samples: &mut Vec<Sample>, source: &str) -> Vec<(i64, Vector3<f64>)> {
+    let rows = samples
+        .iter()
+        .filter(|s| s.source.as_ref() == source)
+        .filter_map(|s| match (&s.data, s.stamp_us) {
+            (SensorData::Imu(i), Some(t)) => i.gyro.map(|g| (t, g)),
+            _ => None,
+        })
+        .collect();
+    samples.retain(|s| s.source.as_ref() != source);
+    rows
+}
+
+/// The attitude topic has no rates; `vehicle_angular_velocity` (its own topic, FRD)
+/// gives them to the attitude samples of the same time (within 10 ms), as MAVLink's
+/// ATTITUDE carries both. Its rows are then dropped.
+fn attach_angular_velocity(samples: &mut Vec<Sample>) {
+    let rates = take_rates(samples, "angular_velocity");
+    if rates.is_empty() {
+        return;
+    }
+    for s in samples
+        .iter_mut()
+        .filter(|s| s.source.as_ref() == "attitude")
+    {
+        let (Some(t), SensorData::Attitude(a)) = (s.stamp_us, &mut s.data) else {
+            continue;
+        };
+        if let Some((rt, g)) = nearest(&rates, t) {
+            if (rt - t).abs() <= 10_000 {
+                a.rates = Some(g);
+            }
+        }
+    }
+}
+
+/// The row of `rows` (sorted by time) nearest to `t`.
+fn nearest(rows: &[(i64, Vector3<f64>)], t: i64) -> Option<(i64, Vector3<f64>)> {
+    let i = rows.partition_point(|r| r.0 < t);
+    [i.checked_sub(1), Some(i)]
+        .into_iter()
+        .flatten()
+        .filter_map(|j| rows.get(j))
+        .min_by_key(|r| (r.0 - t).abs())
+        .copied()
+}
+
+/// Without `vehicle_attitude` (this export logs only EKF2's 1 Hz quaternion), EKF2's
+/// heading (`vehicle_local_position`, 10 Hz) stands in as source `attitude`, tilted as
+/// the nearest EKF2 quaternion (`attitude_states`, within [`TILT_NEAREST_US`]) says, or
+/// level when there is none. A level stand-in would be a lie while the vehicle is
+/// tilted (held on its side, the range finder then reads the far wall). The
+/// `attitude_states` rows it was built from are then dropped: one attitude source, not
+/// two disagreeing at different rates. Returns how many samples it made.
+fn attitude_from_ekf2_heading(samples: &mut Vec<Sample>) -> usize {
+    let tilts: Vec<(i64, UnitQuaternion<f64>)> = samples
+        .iter()
+        .filter(|s| s.source.as_ref() == "attitude_states")
+        .filter_map(|s| match (&s.data, s.stamp_us) {
+            (SensorData::Attitude(a), Some(t)) => Some((t, a.orientation)),
+            _ => None,
+        })
+        .collect();
+    let tilt_at = |t: i64| -> UnitQuaternion<f64> {
+        let i = tilts.partition_point(|r| r.0 < t);
+        let near = [i.checked_sub(1), Some(i)]
+            .into_iter()
+            .flatten()
+            .filter_map(|j| tilts.get(j))
+            .filter(|r| (r.0 - t).abs() <= TILT_NEAREST_US)
+            .min_by_key(|r| (r.0 - t).abs());
+        // The quaternion without its heading: body → a level frame of the same yaw.
+        near.map_or_else(UnitQuaternion::identity, |(_, q)| {
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -yaw_of(q)) * q
+        })
+    };
+    let mut extra = Vec::new();
+    for s in samples.iter() {
+        match &s.data {
+            SensorData::AutopilotEstimate(a) if s.source.as_ref() == "ekf2" => {
+                if let (Some(yaw), Some(t)) = (a.yaw.filter(|y| y.is_finite()), s.stamp_us) {
+                    extra.push(Sample {
+                        source: "attitude".into(),
+                        stamp_us: s.stamp_us,
+                        arrival_us: s.arrival_us,
+                        data: SensorData::Attitude(crate::sample::Attitude {
+                            orientation: UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
+                                * tilt_at(t),
+                            rates: None,
+                        }),
+                    });
+                }
+            }
+            _ => {}
+        }
+    }
+    let n = extra.len();
+    if n > 0 {
+        samples.retain(|s| s.source.as_ref() != "attitude_states");
+    }
+    samples.extend(extra);
+    samples.sort_by_key(|s| s.stamp_us);
+    n
+}
+
+/// Flow modules without a gyro (NaN in `optical_flow`) leave rotation compensation to
+/// the autopilot's IMU. When the log has no high-rate IMU, EKF2's logged gyro integral
+/// over each flow interval (`estimator_optical_flow_vel`, `gyro_rate_integral`, FRD,
+/// with the opposite sign to the body rate — checked against the VIO's rates) is
+/// attached to the `flow` samples it belongs to (same sample time within 5 ms), as
+/// OPTICAL_FLOW_RAD's integrated gyro would carry it. Its rows are then dropped. Returns
+/// how many flow samples got one.
+fn attach_ekf2_flow_gyro(samples: &mut Vec<Sample>) -> usize {
+    let rows = take_rates(samples, EKF2_FLOW_GYRO);
+    let mut n = 0;
+    for s in samples.iter_mut().filter(|s| s.source.as_ref() == "flow") {
+        let (Some(t), SensorData::Flow(f)) = (s.stamp_us, &mut s.data) else {
+            continue;
+        };
+        let (Some(dt), None) = (f.integration_s, f.gyro) else {
+            continue;
+        };
+        if let Some((rt, g)) = nearest(&rows, t) {
+            if (rt - t).abs() <= 5_000 {
+                f.gyro = Some(frames::frd_to_flu(-g / dt));
+                n += 1;
+            }
+        }
+    }
+    n
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    VehicleAttitude,
+    Attitude,
+    SensorCombined,
+    Imu,
+    AngularVelocity,
+    Gps,
+    Range,
+    Flow,
+    VehicleFlow,
+    Vio,
+    Ekf2,
+    Ekf2FlowGyro,
+    LandDetected,
+    Armed,
+}
+
+/// Topic name, source name, kind; the order is the preference when two topics would
+/// give the same source (the later one is then named after its topic) and the tie
+/// order of equal stamps. Field layouts of PX4 v1.12 to v1.15 are read: where a topic
+/// changed (vehicle_gps_position → sensor_gps, optical_flow → vehicle_optical_flow,
+/// vehicle_visual_odometry's frames, sensor_gps's degrees in 1.15) both forms are.
+const TOPICS: [(&str, &str, Kind); 15] = [
+    ("vehicle_attitude", "attitude", Kind::VehicleAttitude),
+    ("estimator_states", "attitude_states", Kind::Attitude),
+    ("sensor_combined", "imu", Kind::SensorCombined),
+    ("vehicle_imu", "vehicle_imu", Kind::Imu),
+    (
+        "vehicle_angular_velocity",
+        "angular_velocity",
+        Kind::AngularVelocity,
+    ),
+    ("sensor_gps", "gps", Kind::Gps),
+    ("vehicle_gps_position", "gps", Kind::Gps),
+    ("distance_sensor", "range", Kind::Range),
+    ("vehicle_optical_flow", "flow", Kind::VehicleFlow),
+    ("optical_flow", "flow", Kind::Flow),
+    ("vehicle_visual_odometry", "vio", Kind::Vio),
+    ("vehicle_local_position", "ekf2", Kind::Ekf2),
+    (
+        "estimator_optical_flow_vel",
+        EKF2_FLOW_GYRO,
+        Kind::Ekf2FlowGyro,
+    ),
+    ("vehicle_land_detected", "land_detected", Kind::LandDetected),
+    ("actuator_armed", "armed", Kind::Armed),
+];
+
+/// The topics a replay wants, for the "missing" report: (what, any of these topics).
+const WANTED: [(&str, &[&str]); 7] = [
+    ("IMU", &["sensor_combined", "vehicle_imu"]),
+    ("attitude", &["vehicle_attitude"]),
+    ("GNSS", &["sensor_gps", "vehicle_gps_position"]),
+    ("range finder", &["distance_sensor"]),
+    ("optical flow", &["vehicle_optical_flow", "optical_flow"]),
+    ("visual odometry", &["vehicle_visual_odometry"]),
+    ("land detector", &["vehicle_land_detected"]),
+];
+
+/// Internal source of EKF2's flow gyro rows, attached to the flow samples and dropped.
+const EKF2_FLOW_GYRO: &str = "ekf2_flow_gyro";
+/// The attitude stand-in takes its tilt from an EKF2 quaternion at most this far away,
+/// µs (estimator_states is logged at about 1 Hz).
+const TILT_NEAREST_US: i64 = 1_000_000;
+
+/// One topic instance to read: a CSV file, or a ULog topic already in memory.
+struct TopicFile {
+    /// The CSV file, or the `.ulg` file (errors name it with the topic).
+    path: PathBuf,
+    name: String,
+    source: String,
+    kind: Kind,
+    order: (usize, u32),
+    data: TopicData,
+}
+
+enum TopicData {
+    Csv {
+        bytes: u64,
+        gzip: bool,
+    },
+    /// Header and column-major values.
+    Ulog {
+        header: Vec<String>,
+        columns: Vec<Vec<f64>>,
+    },
+}
+
+impl TopicFile {
+    fn weight(&self) -> u64 {
+        match &self.data {
+            TopicData::Csv { bytes, .. } => *bytes,
+            TopicData::Ulog { columns, .. } => columns.first().map_or(0, |c| c.len() as u64),
+        }
+    }
+}
+
+/// `<prefix>_<digits>` → (TOPICS index, instance).
+fn match_topic(stem: &str) -> Option<(usize, u32)> {
+    TOPICS.iter().enumerate().find_map(|(i, (prefix, _, _))| {
+        let inst = stem.strip_prefix(prefix)?.strip_prefix('_')?;
+        // All digits, so `vehicle_local_position_setpoint_0` is not a match.
+        if inst.is_empty() || !inst.bytes().all(|b| b.is_ascii_digit()) {
+            return None;
+        }
+        Some((i, inst.parse().ok()?))
+    })
+}
+
+/// Source names: instance `i` > 0 gets `_i`; a topic whose source an earlier topic of
+/// TOPICS already gives (sensor_gps and vehicle_gps_position both present) is named
+/// after itself.
+fn name_sources(files: &mut [TopicFile]) {
+    files.sort_by_key(|f| f.order);
+    let mut claimed: Vec<(&str, usize)> = Vec::new();
+    for f in files.iter_mut() {
+        let (prefix, base, _) = TOPICS[f.order.0];
+        let base = match claimed.iter().find(|(b, _)| *b == base) {
+            Some((_, owner)) if *owner != f.order.0 => prefix,
+            Some(_) => base,
+            None => {
+                claimed.push((base, f.order.0));
+                base
+            }
+        };
+        f.source = if f.order.1 == 0 {
+            base.to_string()
+        } else {
+            format!("{base}_{}", f.order.1)
+        };
+    }
+}
+
+fn find_topic_files(dir: &Path) -> Result<Vec<TopicFile>, Px4LogError> {
+    let list_err = |source| Px4LogError::ListDir {
+        dir: dir.to_path_buf(),
+        source,
+    };
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(list_err)? {
+        let entry = entry.map_err(list_err)?;
+        let file_name = entry.file_name();
+        let Some(file_name) = file_name.to_str() else {
+            continue;
+        };
+        let (stem, gzip) = match (
+            file_name.strip_suffix(".csv.gz"),
+            file_name.strip_suffix(".csv"),
+        ) {
+            (Some(s), _) => (s, true),
+            (None, Some(s)) => (s, false),
+            _ => continue,
+        };
+        let Some((ti, inst)) = match_topic(stem) else {
+            continue;
+        };
+        let path = entry.path();
+        let bytes = std::fs::metadata(&path)
+            .map_err(|source| Px4LogError::Open {
+                file: path.clone(),
+                source,
+            })?
+            .len();
+        files.push(TopicFile {
+            name: format!("{}_{inst}", TOPICS[ti].0),
+            source: String::new(),
+            kind: TOPICS[ti].2,
+            order: (ti, inst),
+            data: TopicData::Csv { bytes, gzip },
+            path,
+        });
+    }
+    if files.is_empty() {
+        let looked_for = TOPICS
+            .iter()
+            .map(|(p, _, _)| format!("{p}_<i>.csv"))
+            .collect::<Vec<_>>()
+            .join(", ");
+        return Err(Px4LogError::NoKnownTopics {
+            dir: dir.to_path_buf(),
+            looked_for,
+        });
+    }
+    name_sources(&mut files);
+    Ok(files)
+}
+
+/// The topics of a ULog file that replay reads, parsed by PX4's `px4-ulog` crate.
+fn ulog_topic_files(file: &Path) -> Result<Vec<TopicFile>, Px4LogError> {
+    use px4_ulog::full_parser::SomeVec;
+    let path_str = file.to_str().ok_or_else(|| Px4LogError::Ulog {
+        file: file.to_path_buf(),
+        reason: "the path is not UTF-8".into(),
+    })?;
+    // The crate panics on some corrupt files instead of returning an error: a bad log
+    // must be an error that names it, never a crash of the replay.
+    let parsed = std::panic::catch_unwind(|| px4_ulog::full_parser::read_file(path_str))
+        .map_err(|_| Px4LogError::Ulog {
+            file: file.to_path_buf(),
+            reason: "the ULog parser failed on a corrupt record".into(),
+        })?
+        .map_err(|e| Px4LogError::Ulog {
+            file: file.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+    let mut files = Vec::new();
+    for (name, instances) in &parsed.messages {
+        let Some(ti) = TOPICS.iter().position(|(p, _, _)| p == name) else {
+            continue;
+        };
+        for (multi, fields) in instances {
+            let inst = u32::from(multi.value());
+            let mut cols: Vec<(&String, Vec<f64>)> = fields
+                .iter()
+                .map(|(k, v)| {
+                    let col: Vec<f64> = match v {
+                        SomeVec::Int8(x) => x.iter().map(|&v| v.into()).collect(),
+                        SomeVec::UInt8(x) => x.iter().map(|&v| v.into()).collect(),
+                        SomeVec::Int16(x) => x.iter().map(|&v| v.into()).collect(),
+                        SomeVec::UInt16(x) => x.iter().map(|&v| v.into()).collect(),
+                        SomeVec::Int32(x) => x.iter().map(|&v| v.into()).collect(),
+                        SomeVec::UInt32(x) => x.iter().map(|&v| v.into()).collect(),
+                        SomeVec::Int64(x) => x.iter().map(|&v| v as f64).collect(),
+                        SomeVec::UInt64(x) => x.iter().map(|&v| v as f64).collect(),
+                        SomeVec::Float(x) => x.iter().map(|&v| v.into()).collect(),
+                        SomeVec::Double(x) => x.clone(),
+                        SomeVec::Bool(x) => x.iter().map(|&v| f64::from(u8::from(v))).collect(),
+                        SomeVec::Char(x) => x.iter().map(|&v| f64::from(u32::from(v))).collect(),
+                    };
+                    (k, col)
+                })
+                .collect();
+            // `timestamp` first, the rest by name: a stable header.
+            cols.sort_by(|a, b| (a.0 != "timestamp", a.0).cmp(&(b.0 != "timestamp", b.0)));
+            let header = cols.iter().map(|(k, _)| (*k).clone()).collect();
+            let columns = cols.into_iter().map(|(_, c)| c).collect();
+            files.push(TopicFile {
+                path: file.to_path_buf(),
+                name: format!("{name}_{inst}"),
+                source: String::new(),
+                kind: TOPICS[ti].2,
+                order: (ti, inst),
+                data: TopicData::Ulog { header, columns },
+            });
+        }
+    }
+    if files.is_empty() {
+        return Err(Px4LogError::Ulog {
+            file: file.to_path_buf(),
+            reason: "none of the topics replay reads is in the log".into(),
+        });
+    }
+    name_sources(&mut files);
+    Ok(files)
+}
+
+struct Progress<'a> {
+    done: u64,
+    total: u64,
+    reported: u64,
+    cb: &'a mut dyn FnMut(u64, u64),
+}
+
+impl Progress<'_> {
+    const STEP: u64 = 256 * 1024;
+
+    fn advance(&mut self, bytes: usize) {
+        // A file that grew since it was listed must not report past the total.
+        self.done = (self.done + bytes as u64).min(self.total);
+        if self.done - self.reported >= Self::STEP {
+            self.reported = self.done;
+            (self.cb)(self.done, self.total);
+        }
+    }
+}
+
+/// Counts one row's outcome and keeps its sample.
+fn take_row(
+    summary: &mut TopicSummary,
+    source: &Arc<str>,
+    result: Result<(Micros, SensorData), Px4LogError>,
+    samples: &mut Vec<Sample>,
+) {
+    summary.rows += 1;
+    match result {
+        Ok((stamp, data)) => {
+            summary.span_us = Some(match summary.span_us {
+                None => (stamp, stamp),
+                Some((a, b)) => (a.min(stamp), b.max(stamp)),
+            });
+            samples.push(Sample {
+                source: source.clone(),
+                stamp_us: Some(stamp),
+                arrival_us: stamp,
+                data,
+            });
+        }
+        Err(e) => {
+            summary.skipped += 1;
+            summary.first_error.get_or_insert(e);
+        }
+    }
+}
+
+fn read_topic(
+    tf: &TopicFile,
+    samples: &mut Vec<Sample>,
+    prog: &mut Progress<'_>,
+) -> Result<TopicSummary, Px4LogError> {
+    let mut summary = TopicSummary {
+        name: tf.name.clone(),
+        source: tf.source.clone(),
+        rows: 0,
+        skipped: 0,
+        first_error: None,
+        span_us: None,
+    };
+    let source: Arc<str> = Arc::from(tf.source.as_str());
+    let file = tf.path.as_path();
+    match &tf.data {
+        TopicData::Ulog { header, columns } => {
+            let mapper = Mapper::new(tf.kind, file, header)?;
+            let rows = columns.first().map_or(0, Vec::len);
+            let mut values = vec![0.0; columns.len()];
+            for i in 0..rows {
+                for (v, c) in values.iter_mut().zip(columns) {
+                    *v = c.get(i).copied().unwrap_or(f64::NAN);
+                }
+                let row = Row {
+                    file,
+                    line: i + 1,
+                    header,
+                    fields: Fields::Num(&values),
+                };
+                take_row(&mut summary, &source, mapper.map(&row), samples);
+                prog.advance(1);
+            }
+        }
+        TopicData::Csv { gzip, .. } => {
+            let f = File::open(file).map_err(|source| Px4LogError::Open {
+                file: file.to_path_buf(),
+                source,
+            })?;
+            let reader: Box<dyn BufRead> = if *gzip {
+                Box::new(BufReader::with_capacity(
+                    1 << 16,
+                    flate2::read::GzDecoder::new(f),
+                ))
+            } else {
+                Box::new(BufReader::with_capacity(1 << 16, f))
+            };
+            read_csv(tf, reader, &source, &mut summary, samples, prog)?;
+        }
+    }
+    Ok(summary)
+}
+
+fn read_csv(
+    tf: &TopicFile,
+    mut reader: Box<dyn BufRead>,
+    source: &Arc<str>,
+    summary: &mut TopicSummary,
+    samples: &mut Vec<Sample>,
+    prog: &mut Progress<'_>,
+) -> Result<(), Px4LogError> {
+    let file = tf.path.as_path();
+    let io_err = |line, source| Px4LogError::Io {
+        file: file.to_path_buf(),
+        line,
+        source,
+    };
+    // Progress counts the file's bytes on disk: compressed ones advance by a share.
+    let ratio = match &tf.data {
+        TopicData::Csv { gzip: true, .. } => 0.2,
+        _ => 1.0,
+    };
+    let mut buf = Vec::with_capacity(1024);
+    let n = reader
+        .read_until(b'\n', &mut buf)
+        .map_err(|e| io_err(1, e))?;
+    prog.advance((n as f64 * ratio) as usize);
+    let header_text = std::str::from_utf8(&buf).map_err(|_| Px4LogError::NotUtf8 {
+        file: file.to_path_buf(),
+        line: 1,
+    })?;
+    let header: Vec<String> = header_text
+        .trim_end_matches(['\r', '\n'])
+        .split(',')
+        .map(|s| s.trim().to_string())
+        .collect();
+    if n == 0 || header.iter().all(|h| h.is_empty()) {
+        return Err(Px4LogError::NoHeader {
+            file: file.to_path_buf(),
+        });
+    }
+    let mapper = Mapper::new(tf.kind, file, &header)?;
+    let mut line = 1;
+    loop {
+        buf.clear();
+        let n = reader
+            .read_until(b'\n', &mut buf)
+            .map_err(|e| io_err(line + 1, e))?;
+        if n == 0 {
+            break;
+        }
+        line += 1;
+        prog.advance((n as f64 * ratio) as usize);
+        let result = match std::str::from_utf8(&buf) {
+            Ok(text) => {
+                let text = text.trim_end_matches(['\r', '\n']);
+                // A trailing blank line is layout, not a row.
+                if text.trim().is_empty() {
+                    continue;
+                }
+                let fields: Vec<&str> = text.split(',').collect();
+                let row = Row {
+                    file,
+                    line,
+                    header: &header,
+                    fields: Fields::Text(&fields),
+                };
+                row.check_len().and_then(|()| mapper.map(&row))
+            }
+            Err(_) => Err(Px4LogError::NotUtf8 {
+                file: file.to_path_buf(),
+                line,
+            }),
+        };
+        take_row(summary, source, result, samples);
+    }
+    Ok(())
+}
+
+/// One data row with what its errors need to name: CSV text, or a ULog row's values.
+struct Row<'a> {
+    file: &'a Path,
+    line: usize,
+    header: &'a [String],
+    fields: Fields<'a>,
+}
+
+#[derive(Clone, Copy)]
+enum Fields<'a> {
+    Text(&'a [&'a str]),
+    Num(&'a [f64]),
+}
+
+impl Fields<'_> {
+    fn len(&self) -> usize {
+        match self {
+            Fields::Text(t) => t.len(),
+            Fields::Num(n) => n.len(),
+        }
+    }
+}
+
+impl Row<'_> {
+    fn check_len(&self) -> Result<(), Px4LogError> {
+        let (expected, found) = (self.header.len(), self.fields.len());
+        if expected == found {
+            return Ok(());
+        }
+        Err(Px4LogError::ColumnCount {
+            file: self.file.to_path_buf(),
+            line: self.line,
+            column: expected.min(found) + 1,
+            expected,
+            found,
+        })
+    }
+
+    fn text(&self, c: usize) -> String {
+        match self.fields {
+            Fields::Text(t) => t.get(c).map_or("", |s| s.trim()).to_string(),
+            Fields::Num(n) => n.get(c).map_or(String::new(), |v| v.to_string()),
+        }
+    }
+
+    fn name(&self, c: usize) -> String {
+        self.header.get(c).cloned().unwrap_or_default()
+    }
+
+    fn bad(&self, c: usize, expected: &'static str) -> Px4LogError {
+        Px4LogError::BadValue {
+            file: self.file.to_path_buf(),
+            line: self.line,
+            column: c + 1,
+            name: self.name(c),
+            text: self.text(c),
+            expected,
+        }
+    }
+
+    fn unusable(&self, c: usize, reason: &'static str) -> Px4LogError {
+        Px4LogError::Unusable {
+            file: self.file.to_path_buf(),
+            line: self.line,
+            column: c + 1,
+            name: self.name(c),
+            reason,
+        }
+    }
+
+    /// A float; `nan`/`inf` parse (PX4's "unknown").
+    fn f64(&self, c: usize) -> Result<f64, Px4LogError> {
+        match self.fields {
+            Fields::Text(t) => t
+                .get(c)
+                .map_or("", |s| s.trim())
+                .parse()
+                .map_err(|_| self.bad(c, "a number")),
+            Fields::Num(n) => n.get(c).copied().ok_or_else(|| self.bad(c, "a number")),
+        }
+    }
+
+    fn finite(&self, c: usize, reason: &'static str) -> Result<f64, Px4LogError> {
+        let v = self.f64(c)?;
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(self.unusable(c, reason))
+        }
+    }
+
+    fn int(
+        &self,
+        c: usize,
+        min: i64,
+        max: i64,
+        expected: &'static str,
+    ) -> Result<i64, Px4LogError> {
+        let v = match self.fields {
+            Fields::Text(t) => t.get(c).and_then(|s| s.trim().parse::<i64>().ok()),
+            Fields::Num(n) => n
+                .get(c)
+                .filter(|v| v.fract() == 0.0 && v.abs() < 9.0e18)
+                .map(|v| *v as i64),
+        };
+        match v {
+            Some(v) if (min..=max).contains(&v) => Ok(v),
+            _ => Err(self.bad(c, expected)),
+        }
+    }
+
+    fn u8(&self, c: usize) -> Result<u8, Px4LogError> {
+        Ok(self.int(c, 0, 255, "an integer 0..=255")? as u8)
+    }
+
+    fn stamp(&self, c: usize) -> Result<Micros, Px4LogError> {
+        self.int(c, 0, i64::MAX, "a timestamp in µs")
+    }
+
+    fn vec3(&self, c: [usize; 3]) -> Result<Vector3<f64>, Px4LogError> {
+        Ok(Vector3::new(
+            self.f64(c[0])?,
+            self.f64(c[1])?,
+            self.f64(c[2])?,
+        ))
+    }
+
+    /// Quaternion w, x, y, z; `None` if non-finite or zero (PX4's "invalid").
+    fn quat(&self, c: [usize; 4]) -> Result<Option<UnitQuaternion<f64>>, Px4LogError> {
+        let q = Quaternion::new(
+            self.f64(c[0])?,
+            self.f64(c[1])?,
+            self.f64(c[2])?,
+            self.f64(c[3])?,
+        );
+        let n = q.norm();
+        Ok((n.is_finite() && n > 1e-6).then(|| UnitQuaternion::from_quaternion(q)))
+    }
+
+    /// A 6×6 covariance from its row-major upper triangle (21 values); `None` if any is
+    /// NaN (PX4 marks an unknown block with NaN and we keep no half-known matrices).
+    fn urt6(&self, c: &[usize; 21]) -> Result<Option<Matrix6<f64>>, Px4LogError> {
+        let mut m = Matrix6::zeros();
+        let mut k = 0;
+        for i in 0..6 {
+            for j in i..6 {
+                let v = self.f64(c[k])?;
+                if !v.is_finite() {
+                    return Ok(None);
+                }
+                m[(i, j)] = v;
+                m[(j, i)] = v;
+                k += 1;
+            }
+        }
+        Ok(Some(m))
+    }
+}
+
+/// Column positions for one topic's fields, resolved from its header once.
+struct Cols<'a> {
+    file: &'a Path,
+    header: &'a [String],
+}
+
+impl Cols<'_> {
+    fn get(&self, name: &str) -> Result<usize, Px4LogError> {
+        self.opt(name).ok_or_else(|| Px4LogError::MissingColumn {
+            file: self.file.to_path_buf(),
+            column: name.to_string(),
+        })
+    }
+
+    fn opt(&self, name: &str) -> Option<usize> {
+        self.header.iter().position(|h| h == name)
+    }
+
+    fn arr<const N: usize>(&self, name: &str) -> Result<[usize; N], Px4LogError> {
+        let mut out = [0; N];
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = self.get(&format!("{name}[{i}]"))?;
+        }
+        Ok(out)
+    }
+
+    fn list<const N: usize>(&self, names: [&str; N]) -> Result<[usize; N], Px4LogError> {
+        let mut out = [0; N];
+        for (o, n) in out.iter_mut().zip(names) {
+            *o = self.get(n)?;
+        }
+        Ok(out)
+    }
+}
+
+mod topics;
+use topics::Mapper;
+
+#[cfg(test)]
+mod tests;
