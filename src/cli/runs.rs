@@ -1,0 +1,297 @@
+//! The offline commands: `sim` scenario runs and `replay` of recorded flights, with
+//! progress bars on a terminal and the scores printed as a table.
+
+use super::*;
+
+pub(super) fn parse_window(s: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s
+        .split_once(':')
+        .ok_or_else(|| format!("window {s:?}: expected START:END in seconds"))?;
+    let a: f64 = a
+        .trim()
+        .parse()
+        .map_err(|_| format!("window start {a:?} is not a number"))?;
+    let b: f64 = b
+        .trim()
+        .parse()
+        .map_err(|_| format!("window end {b:?} is not a number"))?;
+    if !(a.is_finite() && b.is_finite() && b > a) {
+        return Err(format!("window {s:?}: END must be after START"));
+    }
+    Ok((a, b))
+}
+
+pub(super) fn parse_fusion(s: &str) -> Result<Vec<Mode>, String> {
+    match s {
+        "all" => Ok(vec![Mode::Wrls, Mode::Ekf, Mode::WrlsEkf]),
+        "wrls" => Ok(vec![Mode::Wrls]),
+        "ekf" => Ok(vec![Mode::Ekf]),
+        "wrls+ekf" => Ok(vec![Mode::WrlsEkf]),
+        other => Err(format!(
+            "unknown fusion mode {other:?} (wrls, ekf, wrls+ekf or all)"
+        )),
+    }
+}
+
+/// A progress bar on stderr: redrawn in place on a terminal, every 10 % otherwise.
+pub struct Progress {
+    label: String,
+    tty: bool,
+    last_shown: i64,
+}
+
+impl Progress {
+    pub fn new(label: impl Into<String>) -> Self {
+        use std::io::IsTerminal;
+        Self {
+            label: label.into(),
+            tty: std::io::stderr().is_terminal(),
+            last_shown: -1,
+        }
+    }
+
+    pub fn update(&mut self, fraction: f64) {
+        let pct = (fraction.clamp(0.0, 1.0) * 100.0) as i64;
+        let step = if self.tty { 1 } else { 10 };
+        if pct / step == self.last_shown / step && pct != 100 || pct == self.last_shown {
+            return;
+        }
+        self.last_shown = pct;
+        let filled = (pct / 4) as usize;
+        let bar = format!("{}{}", "#".repeat(filled), "-".repeat(25 - filled));
+        if self.tty {
+            eprint!("\r{} [{bar}] {pct:>3}%", self.label);
+            if pct == 100 {
+                eprintln!();
+            }
+        } else {
+            eprintln!("{} [{bar}] {pct:>3}%", self.label);
+        }
+    }
+}
+
+pub(super) fn fmt_rmse(v: Option<f64>) -> String {
+    v.map(|x| format!("{x:.3}")).unwrap_or_else(|| "-".into())
+}
+
+/// One row of the scenario table: name, each source's APE RMSE, fused per mode.
+type ScenarioRow = (String, Vec<(String, Option<f64>)>, Vec<Option<f64>>);
+
+/// `skyfuse sim --out`: one or all scenarios, one or all fusion modes.
+pub(super) fn offline_sims(
+    c: &Config,
+    scenario_name: &str,
+    fusion: Option<&str>,
+    seed: u64,
+    duration: Option<f64>,
+    out: &std::path::Path,
+) -> Result<(), String> {
+    let names: Vec<&str> = if scenario_name == "all" {
+        scenario::NAMES.iter().map(|(n, _)| *n).collect()
+    } else {
+        vec![scenario_name]
+    };
+    let modes = match fusion {
+        Some(f) => parse_fusion(f)?,
+        None => vec![c.estimator.mode],
+    };
+    let many = names.len() > 1 || modes.len() > 1;
+    let duration = duration.unwrap_or(scenario::DEFAULT_DURATION_S);
+    // scenario -> (source scores from the first mode, fused score per mode)
+    let mut table: Vec<ScenarioRow> = Vec::new();
+    for name in &names {
+        let scn = scenario::scenario(name)
+            .ok_or_else(|| format!("unknown scenario {name:?} (see --list)"))?;
+        let mut sources = Vec::new();
+        let mut fused = Vec::new();
+        for m in &modes {
+            let mut cfg = c.estimator.clone();
+            cfg.mode = *m;
+            let dir = if many {
+                out.join(name).join(m.as_str())
+            } else {
+                out.to_path_buf()
+            };
+            let mut bar = Progress::new(format!("{name:<16} {:<8}", m.as_str()));
+            let summary = offline::run_scenario(
+                &scn,
+                seed,
+                duration,
+                cfg,
+                c.health.clone(),
+                &dir,
+                &mut |f| bar.update(f),
+            )
+            .map_err(|e| e.to_string())?;
+            if sources.is_empty() {
+                sources = summary
+                    .scores
+                    .iter()
+                    .filter(|s| s.name != "fused")
+                    .map(|s| (s.name.clone(), s.ape.as_ref().map(|a| a.rmse)))
+                    .collect();
+            }
+            let (f, best) = summary.fused_and_best_source();
+            tracing::info!(
+                scenario = name,
+                mode = m.as_str(),
+                fused_rmse_m = fmt_rmse(f),
+                best_source = best.as_ref().map(|b| format!("{} {:.3}", b.0, b.1)).unwrap_or_default(),
+                events = summary.events,
+                out = %dir.display(),
+                "offline run done"
+            );
+            fused.push(f);
+        }
+        table.push((name.to_string(), sources, fused));
+    }
+    let mut md = String::from(
+        "APE RMSE against truth, m (SE(3)-aligned as `evo_ape -a`); sources as the sensors report them\n\n| scenario | sources | ",
+    );
+    md += &modes
+        .iter()
+        .map(|m| m.as_str())
+        .collect::<Vec<_>>()
+        .join(" | ");
+    md += " |\n|---|---|";
+    md += &"---|".repeat(modes.len());
+    md += "\n";
+    for (name, sources, fused) in &table {
+        let src = sources
+            .iter()
+            .map(|(n, r)| format!("{n} {}", fmt_rmse(*r)))
+            .collect::<Vec<_>>()
+            .join(", ");
+        md += &format!(
+            "| {name} | {src} | {} |\n",
+            fused
+                .iter()
+                .map(|f| fmt_rmse(*f))
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+    }
+    print!("{md}");
+    if many {
+        std::fs::write(out.join("table.md"), &md)
+            .map_err(|e| format!("cannot write {}: {e}", out.join("table.md").display()))?;
+    }
+    Ok(())
+}
+
+/// `skyfuse replay`.
+pub(super) fn replay(
+    c: &Config,
+    path: &std::path::Path,
+    out: &std::path::Path,
+    sources: Option<&[String]>,
+    reference: &str,
+    window: Option<(f64, f64)>,
+    fusion: Option<&str>,
+) -> Result<(), String> {
+    let mut cfg = c.estimator.clone();
+    if let Some(f) = fusion {
+        match parse_fusion(f)?.as_slice() {
+            [m] => cfg.mode = *m,
+            _ => return Err("replay takes one fusion mode".into()),
+        }
+    }
+    let mut bar = Progress::new("reading  ");
+    let mut on_progress = |done: u64, total: u64| bar.update(done as f64 / total.max(1) as f64);
+    let name = path.to_string_lossy().to_ascii_lowercase();
+    let is_tlog = name.ends_with(".tlog") || name.ends_with(".tlog.gz");
+    let samples = if is_tlog {
+        let log =
+            crate::replay::tlog::read_tlog(path, &mut on_progress).map_err(|e| e.to_string())?;
+        for (m, n) in &log.messages {
+            tracing::info!(message = %m, samples = n, "read");
+        }
+        if log.skipped_bytes > 0 || log.bad_frames > 0 {
+            tracing::warn!(
+                skipped_bytes = log.skipped_bytes,
+                bad_frames = log.bad_frames,
+                "corrupt records skipped; first problem: {}",
+                log.first_error
+                    .as_deref()
+                    .unwrap_or("bytes between records")
+            );
+        }
+        log.samples
+    } else {
+        let log = crate::replay::px4log::read_path_with_progress(path, &mut on_progress)
+            .map_err(|e| e.to_string())?;
+        for t in &log.topics {
+            match &t.first_error {
+                Some(e) => {
+                    tracing::warn!(topic = %t.name, source = %t.source, rows = t.rows, skipped = t.skipped, "read; first problem: {e}")
+                }
+                None => tracing::info!(topic = %t.name, source = %t.source, rows = t.rows, "read"),
+            }
+        }
+        for s in &log.stand_ins {
+            println!("stand-in: {s}");
+        }
+        for m in &log.missing {
+            println!("missing: {m}");
+        }
+        log.samples
+    };
+    let mut bar = Progress::new("replaying");
+    let opts = offline::ReplayOptions {
+        fuse: sources.map(|s| s.to_vec()),
+        reference: reference.to_string(),
+        window,
+    };
+    let summary = offline::run_replay(
+        &path.display().to_string(),
+        &samples,
+        cfg,
+        c.health.clone(),
+        &opts,
+        out,
+        &mut |f| bar.update(f),
+    )
+    .map_err(|e| e.to_string())?;
+    println!(
+        "replayed {} samples ({}) -> {}",
+        summary.samples,
+        summary.mode,
+        out.display()
+    );
+    let a = &summary.availability;
+    println!(
+        "valid {:.1} % of {:.1} s, longest invalid {:.1} s{}",
+        100.0 * a.valid_fraction,
+        a.span_s,
+        a.longest_invalid_s,
+        match (
+            a.airborne_s,
+            a.airborne_valid_fraction,
+            a.airborne_longest_invalid_s
+        ) {
+            (Some(s), Some(f), Some(g)) => format!(
+                "; airborne {s:.1} s: valid {:.1} %, longest invalid {g:.1} s",
+                100.0 * f
+            ),
+            _ => String::new(),
+        }
+    );
+    println!(
+        "APE against {} (fused: valid poses only), m:   RMSE / max SE(3)-aligned   RMSE / max origin-aligned",
+        summary.reference
+    );
+    let stat = |a: &Option<crate::eval::ApeStats>| match a {
+        Some(a) => format!("{:>7.3} / {:>7.3}", a.rmse, a.max),
+        None => format!("{:>17}", "-"),
+    };
+    for s in &summary.scores {
+        println!(
+            "  {:<12} {}     {}   ({} poses)",
+            s.name,
+            stat(&s.ape),
+            stat(&s.ape_origin),
+            s.poses
+        );
+    }
+    Ok(())
+}
