@@ -1,6 +1,6 @@
 //! End to end: the dashboard in Debian's headless Chromium (driven by Python
 //! playwright) against `skyfuse demo`; the control API's token; a websocket client that
-//! never reads next to one that does.
+//! never reads next to one that does; /metrics read by the Prometheus client's parser.
 
 mod common;
 use common::*;
@@ -100,6 +100,40 @@ fn controls_need_the_token_and_change_nothing_without_it() {
     assert_eq!(code, 200, "{body}");
     let s = svc.get_json("/api/v1/status");
     assert_eq!(reset(&s), (before + 1) % 256);
+}
+
+#[test]
+fn prometheus_reads_the_metrics_and_they_agree_with_the_status() {
+    // Parsed by the Prometheus project's own OpenMetrics parser (tests/py/metrics_check.py)
+    // and checked against /api/v1/status: every input, each sensor's health state,
+    // validity, position σ, the refused controls; counters never go back; VPE flows.
+    let svc = Service::start(&["demo", "--no-browser"], &[]);
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
+    for _ in 0..2 {
+        let (code, _) = http_post(
+            svc.http_port,
+            "/api/v1/control/reset-origin",
+            "",
+            Some("nope"),
+        )
+        .expect("POST");
+        assert_eq!(code, 401);
+    }
+    let out = json(&run_py(
+        "metrics_check.py",
+        &["--port", &svc.http_port.to_string()],
+    ));
+    assert_eq!(out["problems"], serde_json::json!([]), "{out}");
+    assert!(out["inputs"].as_u64().unwrap_or(0) >= 6, "{out}");
+    assert!(out["vpe_per_s"].as_f64().unwrap_or(0.0) >= 20.0, "{out}");
+    assert!(out["rss_mb"].as_f64().unwrap_or(0.0) > 1.0, "{out}");
+    let (code, text) = http_get(svc.http_port, "/metrics").expect("GET");
+    assert_eq!(code, 200);
+    assert!(
+        text.contains("skyfuse_controls_refused_total 2\n"),
+        "{text}"
+    );
+    assert!(text.ends_with("# EOF\n"));
 }
 
 #[test]

@@ -16,9 +16,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 mod assets;
+pub mod metrics;
 mod state;
 
-pub use state::AppState;
+pub use state::{AppState, SensorView, Status};
 
 pub fn router(state: Arc<AppState>) -> Router {
     Router::new()
@@ -28,6 +29,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/vendor/{file}", get(vendor))
         .route("/healthz", get(healthz))
         .route("/api/v1/status", get(status))
+        .route("/metrics", get(metrics_text))
         .route("/api/v1/config", get(config))
         .route("/api/v1/ros/topics", get(ros_topics))
         .route("/api/v1/control/{action}", post(control))
@@ -49,6 +51,12 @@ async fn healthz(State(s): State<Arc<AppState>>) -> Response {
 
 async fn status(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {
     Json(s.status_json())
+}
+
+/// `GET /metrics` (Prometheus, OpenMetrics text).
+async fn metrics_text(State(s): State<Arc<AppState>>) -> Response {
+    let body = metrics::render(&s.status(), metrics::ProcessStats::read());
+    ([(header::CONTENT_TYPE, metrics::CONTENT_TYPE)], body).into_response()
 }
 
 async fn ros_topics(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {

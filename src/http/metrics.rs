@@ -1,0 +1,352 @@
+//! `GET /metrics`: the service's numbers in the OpenMetrics text format, for Prometheus
+//! (or anything that scrapes it). Built at each scrape from the same typed [`Status`]
+//! that `/api/v1/status` serialises, so the two never disagree, and encoded by the
+//! official `prometheus-client` crate (names, `_total` suffixes, escaping, `# EOF`).
+
+use super::state::Status;
+use crate::health::HealthState;
+use prometheus_client::encoding::text::encode;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::registry::{Registry, Unit};
+use std::sync::atomic::AtomicU64;
+
+/// What Prometheus asks for and gets.
+pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
+
+type Labels = Vec<(&'static str, String)>;
+type Counters = Family<Labels, Counter>;
+type Gauges = Family<Labels, Gauge<f64, AtomicU64>>;
+
+/// Every health state, so a sensor's state is a set of 0/1 gauges (one is 1).
+const STATES: [HealthState; 6] = [
+    HealthState::Ok,
+    HealthState::Degraded,
+    HealthState::Failed,
+    HealthState::Stale,
+    HealthState::NoData,
+    HealthState::Disabled,
+];
+
+/// The process's own CPU time and resident memory (Linux `/proc/self`), if readable.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ProcessStats {
+    pub cpu_seconds: f64,
+    pub resident_bytes: f64,
+}
+
+impl ProcessStats {
+    pub fn read() -> Option<Self> {
+        // utime and stime are fields 14 and 15 of /proc/self/stat, after the
+        // parenthesised command name (which may hold spaces).
+        let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+        let rest = stat.rsplit_once(')')?.1;
+        let fields: Vec<&str> = rest.split_whitespace().collect();
+        let ticks: f64 =
+            fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+        let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+        let pages: f64 = statm.split_whitespace().nth(1)?.parse().ok()?;
+        // USER_HZ and the page size: 100 and 4 KiB on every Linux this runs on.
+        Some(Self {
+            cpu_seconds: ticks / 100.0,
+            resident_bytes: pages * 4096.0,
+        })
+    }
+}
+
+struct Metrics {
+    registry: Registry,
+}
+
+impl Metrics {
+    fn counters(&mut self, name: &str, help: &str) -> Counters {
+        let f = Counters::default();
+        self.registry.register(name, help, f.clone());
+        f
+    }
+
+    fn gauges(&mut self, name: &str, help: &str) -> Gauges {
+        let f = Gauges::default();
+        self.registry.register(name, help, f.clone());
+        f
+    }
+
+    fn gauges_unit(&mut self, name: &str, help: &str, unit: Unit) -> Gauges {
+        let f = Gauges::default();
+        self.registry
+            .register_with_unit(name, help, unit, f.clone());
+        f
+    }
+
+    fn gauge(&mut self, name: &str, help: &str, v: f64) {
+        let g: Gauge<f64, AtomicU64> = Gauge::default();
+        g.set(v);
+        self.registry.register(name, help, g);
+    }
+
+    fn counter(&mut self, name: &str, help: &str, v: u64) {
+        let c: Counter = Counter::default();
+        c.inc_by(v);
+        self.registry.register(name, help, c);
+    }
+}
+
+fn flag(b: bool) -> f64 {
+    if b {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+/// The text a scrape gets.
+pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
+    let mut m = Metrics {
+        registry: Registry::with_prefix("skyfuse"),
+    };
+    let svc = &status.service;
+    m.gauges(
+        "build_info",
+        "Version and vehicle of this service (always 1)",
+    )
+    .get_or_create(&vec![
+        ("version", svc.version.to_string()),
+        ("vehicle", svc.vehicle.clone()),
+    ])
+    .set(1.0);
+    let uptime: Gauge<f64, AtomicU64> = Gauge::default();
+    uptime.set(svc.uptime_s);
+    m.registry.register_with_unit(
+        "uptime",
+        "Time since the service started",
+        Unit::Seconds,
+        uptime,
+    );
+    m.gauge(
+        "zenoh_routers",
+        "Zenoh routers this session is connected to",
+        svc.zenoh.routers as f64,
+    );
+    m.gauge(
+        "zenoh_peers",
+        "Zenoh peers this session is connected to",
+        svc.zenoh.peers as f64,
+    );
+
+    let ing = &status.ingest;
+    m.gauge(
+        "ingest_queue_length",
+        "Samples waiting for the estimator",
+        ing.queue_len as f64,
+    );
+    m.gauge(
+        "ingest_queue_capacity",
+        "Capacity of the estimator's input queue",
+        ing.queue_capacity as f64,
+    );
+    m.counter(
+        "ingest_consumed",
+        "Samples the estimator task took from the queue",
+        ing.consumed,
+    );
+
+    let received = m.counters("input_received", "Messages received per input");
+    let accepted = m.counters("input_accepted", "Messages decoded into samples per input");
+    let rejected = m.counters(
+        "input_rejected",
+        "Messages refused per input (malformed, out of range, bad stamp)",
+    );
+    let ignored = m.counters("input_ignored", "Messages deliberately not used per input");
+    let dropped = m.counters(
+        "input_dropped",
+        "Samples dropped per input because the estimator's queue was full",
+    );
+    let restarts = m.counters(
+        "input_clock_restarts",
+        "Times an input's clock restarted and was followed",
+    );
+    let rate = m.gauges_unit(
+        "input_rate",
+        "Measured message rate per input",
+        Unit::Other("hertz".into()),
+    );
+    let expected = m.gauges_unit(
+        "input_expected_rate",
+        "Configured message rate per input",
+        Unit::Other("hertz".into()),
+    );
+    let health = m.gauges(
+        "sensor_health",
+        "Health state per sensor: 1 for the current state, 0 for the others",
+    );
+    let used = m.gauges("sensor_used", "1 if the estimator fused this sensor lately");
+    let ratio = m.gauges(
+        "sensor_test_ratio",
+        "Innovation test ratio of the sensor's last update (> 1 rejected)",
+    );
+    for s in &status.sensors {
+        let id = s.input.id.clone();
+        let l: Labels = vec![
+            ("input", id.clone()),
+            ("kind", s.input.kind.as_str().to_string()),
+        ];
+        received.get_or_create(&l).inc_by(s.input.received);
+        accepted.get_or_create(&l).inc_by(s.input.accepted);
+        rejected.get_or_create(&l).inc_by(s.input.rejected);
+        ignored.get_or_create(&l).inc_by(s.input.ignored);
+        dropped.get_or_create(&l).inc_by(s.input.dropped);
+        restarts.get_or_create(&l).inc_by(s.input.clock_restarts);
+        rate.get_or_create(&l).set(s.input.rate_hz);
+        expected.get_or_create(&l).set(s.input.expected_rate_hz);
+        for st in STATES {
+            health
+                .get_or_create(&vec![
+                    ("input", id.clone()),
+                    ("state", st.as_str().to_string()),
+                ])
+                .set(flag(st == s.health));
+        }
+        let one = vec![("input", id)];
+        used.get_or_create(&one).set(flag(s.used == Some(true)));
+        if let Some(r) = s.test_ratio.filter(|r| r.is_finite()) {
+            ratio.get_or_create(&one).set(r);
+        }
+    }
+
+    let est = &status.estimator;
+    let valid = est["valid"].as_bool().unwrap_or(false);
+    m.gauge(
+        "estimate_valid",
+        "1 if the fused estimate is valid (what the autopilot gets)",
+        flag(valid),
+    );
+    m.gauge(
+        "estimate_initialised",
+        "1 once the filter has started",
+        flag(est["initialised"].as_bool().unwrap_or(false)),
+    );
+    m.gauge(
+        "estimate_reset_counter",
+        "The pose's reset counter (wraps at 256)",
+        est["reset_counter"].as_f64().unwrap_or(0.0),
+    );
+    let std = m.gauges_unit(
+        "estimate_position_std",
+        "Position standard deviation per axis (ENU)",
+        Unit::Meters,
+    );
+    if let Some(v) = est["position_std"].as_array() {
+        for (axis, s) in ["x", "y", "z"].iter().zip(v) {
+            if let Some(s) = s.as_f64() {
+                std.get_or_create(&vec![("axis", axis.to_string())]).set(s);
+            }
+        }
+    }
+    m.counter(
+        "estimator_late_dropped",
+        "Samples older than the estimator's history, dropped",
+        est["late_dropped"].as_u64().unwrap_or(0),
+    );
+
+    let sent = m.counters(
+        "output_sent",
+        "Messages sent per output (MAVLink: VISION_POSITION_ESTIMATE; Zenoh: poses)",
+    );
+    let out_dropped = m.counters(
+        "output_dropped",
+        "Messages an output could not hand to its link",
+    );
+    let errors = m.counters("output_errors", "Send errors per output");
+    let withheld = m.counters(
+        "output_withheld",
+        "Poses not sent to the autopilot because the estimate was invalid",
+    );
+    let sending = m.gauges("output_sending", "1 if the output is sending now");
+    for o in &status.outputs {
+        let name = o["name"].as_str().unwrap_or("?").to_string();
+        let l: Labels = vec![
+            ("output", name),
+            ("kind", o["kind"].as_str().unwrap_or("?").to_string()),
+        ];
+        let n = |k: &str| o[k].as_u64().unwrap_or(0);
+        sent.get_or_create(&l).inc_by(n("sent"));
+        out_dropped.get_or_create(&l).inc_by(n("dropped"));
+        errors.get_or_create(&l).inc_by(n("errors"));
+        if o.get("withheld").is_some() {
+            withheld.get_or_create(&l).inc_by(n("withheld"));
+        }
+        sending
+            .get_or_create(&l)
+            .set(flag(o["sending"].as_bool().unwrap_or(false)));
+    }
+
+    let ws = &status.websocket;
+    m.gauge(
+        "websocket_clients",
+        "Dashboard clients connected",
+        ws["clients"].as_f64().unwrap_or(0.0),
+    );
+    m.counter(
+        "websocket_dropped",
+        "Frames dropped for slow websocket clients (oldest first)",
+        ws["dropped_total"].as_u64().unwrap_or(0),
+    );
+    m.counter(
+        "controls_refused",
+        "Control requests refused for a missing or wrong token",
+        status.controls.refused,
+    );
+
+    let mut text = String::new();
+    if let Some(p) = process {
+        // The process collector's standard names, without the skyfuse prefix.
+        let mut reg = Registry::default();
+        let cpu: Counter<f64, AtomicU64> = Counter::default();
+        cpu.inc_by(p.cpu_seconds);
+        reg.register_with_unit(
+            "process_cpu",
+            "Total user and system CPU time",
+            Unit::Seconds,
+            cpu,
+        );
+        let rss: Gauge<f64, AtomicU64> = Gauge::default();
+        rss.set(p.resident_bytes);
+        reg.register_with_unit(
+            "process_resident_memory",
+            "Resident memory size",
+            Unit::Bytes,
+            rss,
+        );
+        let _ = encode_body(&mut text, &reg);
+    }
+    let mut main = String::new();
+    if encode(&mut main, &m.registry).is_err() {
+        return "# EOF\n".into();
+    }
+    // One `# EOF` at the very end: the process block goes before it.
+    match main.strip_suffix("# EOF\n") {
+        Some(body) => format!("{body}{text}# EOF\n"),
+        None => main,
+    }
+}
+
+/// A registry's families without the closing `# EOF`.
+fn encode_body(out: &mut String, reg: &Registry) -> std::fmt::Result {
+    let mut s = String::new();
+    encode(&mut s, reg)?;
+    out.push_str(s.strip_suffix("# EOF\n").unwrap_or(&s));
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_process_reads_its_own_cpu_and_memory() {
+        let p = ProcessStats::read().expect("Linux /proc/self");
+        assert!(p.resident_bytes > 1e6, "{p:?}");
+        assert!(p.cpu_seconds >= 0.0 && p.cpu_seconds < 1e6, "{p:?}");
+    }
+}
