@@ -23,7 +23,7 @@
 //! - [`cli`]: the command line; `main.rs` only calls [`cli::main`].
 
 pub use skyfuse_core::{
-    codec, estimator, eval, event, fusion, geo, health, offline, replay, sample, sync,
+    codec, estimator, eval, event, fusion, geo, health, offline, replay, sample, sync, verdict,
 };
 
 pub mod app;

@@ -4,7 +4,7 @@
 //! `{"kind": "<snake_case variant>", "data": {...}}` beside `source` and `message`
 //! (web/PROTOCOL.md, checked against [`Event::KINDS`] by a test).
 
-use crate::health::{HealthState, Reason};
+use crate::verdict::{HealthState, Reason};
 use serde::Serialize;
 
 /// One event: when, about which source, a sentence for people, and what it was.

@@ -10,6 +10,7 @@
 //!   (ROS 2 CDR, ROS 1, mavlink-server JSON, raw MAVLink, skyfuse JSON).
 //! - [`geo`]: WGS-84 geodetic ↔ local ENU.
 //! - [`estimator`]: the deterministic estimator (time passed in, never read).
+//! - [`verdict`]: a sensor's health state and the reasons for it (the words only).
 //! - [`health`]: per-sensor health checks with hysteresis.
 //! - [`event`]: what happened, typed (estimator, health, service), JSON only at the edge.
 //! - [`fusion`]: the estimator under health supervision, shared by service and offline.
@@ -34,3 +35,4 @@ pub mod replay;
 pub mod sample;
 pub mod sim;
 pub mod sync;
+pub mod verdict;

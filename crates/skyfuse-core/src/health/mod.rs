@@ -28,53 +28,7 @@ use std::collections::BTreeMap;
 
 pub use checks::Observation;
 
-/// Health of one sensor.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum HealthState {
-    Ok,
-    Degraded,
-    Failed,
-    Stale,
-    NoData,
-    Disabled,
-}
-
-impl HealthState {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            HealthState::Ok => "ok",
-            HealthState::Degraded => "degraded",
-            HealthState::Failed => "failed",
-            HealthState::Stale => "stale",
-            HealthState::NoData => "no_data",
-            HealthState::Disabled => "disabled",
-        }
-    }
-
-    /// Whether the estimator may fuse a sensor in this state.
-    pub fn usable(self) -> bool {
-        matches!(self, HealthState::Ok | HealthState::Degraded)
-    }
-
-    fn rank(self) -> u8 {
-        match self {
-            HealthState::Ok => 0,
-            HealthState::Degraded => 1,
-            HealthState::Failed => 2,
-            HealthState::Stale => 3,
-            HealthState::NoData => 3,
-            HealthState::Disabled => 4,
-        }
-    }
-}
-
-/// Why a sensor is not ok.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Reason {
-    pub code: &'static str,
-    pub text: String,
-}
+pub use crate::verdict::{HealthState, Reason};
 
 /// Thresholds (`[health]` in the config).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
