@@ -108,6 +108,7 @@ pub async fn run_with(
         pose: pose_rx.clone(),
         faults: options.faults,
         controls_refused: AtomicU64::new(0),
+        refusals: Default::default(),
         mavlink_stats: mavlink_stats.clone(),
         zenoh_out_stats: zenoh_out_stats.clone(),
         started_us,
@@ -188,6 +189,8 @@ pub async fn run_with(
         let _ = tcp.set_nodelay(true);
         let _ = socket2::SockRef::from(&*tcp).set_send_buffer_size(HTTP_SEND_BUFFER);
     });
+    // The peer address reaches the handlers (refused controls are limited per address).
+    let app = app.into_make_service_with_connect_info::<std::net::SocketAddr>();
     axum::serve(http, app)
         .with_graceful_shutdown(shutdown)
         .await

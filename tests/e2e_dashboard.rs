@@ -103,6 +103,35 @@ fn controls_need_the_token_and_change_nothing_without_it() {
 }
 
 #[test]
+fn guessing_the_token_is_limited_per_address_and_big_bodies_are_refused() {
+    let svc = Service::start(&["demo", "--no-browser"], &[]);
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"].is_object());
+    let post = |token: Option<&str>| {
+        http_post(svc.http_port, "/api/v1/control/reset-origin", "", token).expect("POST")
+    };
+    // Ten wrong guesses are answered 401; the eleventh and anything after, the right
+    // token included, 429 with Retry-After, for the rest of the minute.
+    for i in 0..10 {
+        assert_eq!(post(Some(&format!("guess-{i}"))).0, 401, "guess {i}");
+    }
+    let (code, body) = post(Some("guess-10"));
+    assert_eq!(code, 401, "{body}");
+    let (code, body) = post(Some(&svc.token));
+    assert_eq!(code, 429, "{body}");
+    assert!(body.contains("try again later"), "{body}");
+    let s = svc.get_json("/api/v1/status");
+    assert_eq!(s["controls"]["refused"], 12);
+    assert!(svc.log_text().contains("too many refused requests"));
+    // A body beyond 16 KiB is refused before any handler reads it.
+    let big = format!(
+        r#"{{"sensor":"gps","fault":"stop","pad":"{}"}}"#,
+        "x".repeat(20_000)
+    );
+    let (code, _) = http_post(svc.http_port, "/api/v1/control/fault", &big, None).expect("POST");
+    assert_eq!(code, 413);
+}
+
+#[test]
 fn prometheus_reads_the_metrics_and_they_agree_with_the_status() {
     // Parsed by the Prometheus project's own OpenMetrics parser (tests/py/metrics_check.py)
     // and checked against /api/v1/status: every input, each sensor's health state,

@@ -5,7 +5,7 @@
 use crate::event::Event;
 use crate::pipeline::Command;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{Path, State};
+use axum::extract::{ConnectInfo, DefaultBodyLimit, Path, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
@@ -34,6 +34,8 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/api/v1/ros/topics", get(ros_topics))
         .route("/api/v1/control/{action}", post(control))
         .route("/ws", get(ws))
+        // Control bodies are a few bytes; nothing the API takes is larger.
+        .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
         .with_state(state)
 }
 
@@ -67,6 +69,27 @@ async fn config(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {
     Json(s.config.redacted_json())
 }
 
+/// Largest request body accepted, bytes.
+const MAX_BODY_BYTES: usize = 16 * 1024;
+/// Largest websocket message a client may send (a `subscribe` is ~40 bytes), bytes.
+const MAX_WS_MESSAGE_BYTES: usize = 4 * 1024;
+/// Refused control requests allowed per peer address within [`REFUSAL_WINDOW_US`];
+/// beyond that the address gets 429 until the window ends, token or not (guessing
+/// the token costs a minute per ten tries).
+const MAX_REFUSALS: u32 = 10;
+const REFUSAL_WINDOW_US: i64 = 60_000_000;
+
+/// Whether `ip` has used up its refusals; counts this one if `refused`.
+fn refusals_exhausted(s: &AppState, ip: std::net::IpAddr, now: i64, refused: bool) -> bool {
+    let mut map = crate::sync::lock(&s.refusals);
+    map.retain(|_, (start, _)| now - *start < REFUSAL_WINDOW_US);
+    if refused {
+        let e = map.entry(ip).or_insert((now, 0));
+        e.1 += 1;
+    }
+    map.get(&ip).is_some_and(|&(_, n)| n > MAX_REFUSALS)
+}
+
 /// Compare without an early exit, so response time does not leak the token's prefix.
 fn token_matches(given: &str, want: &str) -> bool {
     let (g, w) = (given.as_bytes(), want.as_bytes());
@@ -97,13 +120,26 @@ fn authorised(s: &AppState, headers: &HeaderMap) -> Result<(), &'static str> {
 
 async fn control(
     State(s): State<Arc<AppState>>,
+    ConnectInfo(peer): ConnectInfo<std::net::SocketAddr>,
     Path(action): Path<String>,
     headers: HeaderMap,
     body: axum::body::Bytes,
 ) -> Response {
+    let now = crate::clock::now_us();
+    if refusals_exhausted(&s, peer.ip(), now, false) {
+        s.controls_refused.fetch_add(1, Relaxed);
+        tracing::warn!(action, %peer, "control refused: too many refused requests from this address");
+        return (
+            StatusCode::TOO_MANY_REQUESTS,
+            [(header::RETRY_AFTER, (REFUSAL_WINDOW_US / 1_000_000).to_string())],
+            Json(json!({ "error": format!("more than {MAX_REFUSALS} refused requests from {} within {} s: try again later", peer.ip(), REFUSAL_WINDOW_US / 1_000_000) })),
+        )
+            .into_response();
+    }
     if let Err(why) = authorised(&s, &headers) {
         s.controls_refused.fetch_add(1, Relaxed);
-        tracing::warn!(action, "control refused: {why}");
+        refusals_exhausted(&s, peer.ip(), now, true);
+        tracing::warn!(action, %peer, "control refused: {why}");
         return (
             StatusCode::UNAUTHORIZED,
             [(header::WWW_AUTHENTICATE, "Bearer")],
@@ -159,7 +195,9 @@ async fn control(
 }
 
 async fn ws(State(s): State<Arc<AppState>>, up: WebSocketUpgrade) -> Response {
-    up.on_upgrade(move |socket| client(s, socket))
+    up.max_message_size(MAX_WS_MESSAGE_BYTES)
+        .max_frame_size(MAX_WS_MESSAGE_BYTES)
+        .on_upgrade(move |socket| client(s, socket))
 }
 
 /// One websocket client: snapshot, then whatever its queue holds. Its queue is the

@@ -28,6 +28,8 @@ pub struct AppState {
     pub pose: PoseReceiver,
     pub faults: Option<Arc<FaultSchedule>>,
     pub controls_refused: AtomicU64,
+    /// Refused control requests per peer address: (window start, count).
+    pub refusals: std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, (Micros, u32)>>,
     pub mavlink_stats: Arc<MavlinkStats>,
     pub zenoh_out_stats: Arc<ZenohOutStats>,
     pub started_us: Micros,
