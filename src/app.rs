@@ -8,14 +8,13 @@ use crate::clock::now_us;
 use crate::config::Config;
 use crate::event::Event;
 pub use crate::http::AppState;
-use crate::hub::{FrameKind, Hub};
+use crate::hub::Hub;
 use crate::ingest::{zenoh_in, Ingest};
 use crate::output::mavlink_out;
 use crate::output::zenoh_out::{self, ZenohOutInputs, ZenohOutStats};
 use crate::pipeline::{self, PipelineShared};
 use crate::sample::Sample;
 use crate::sim::faults::FaultSchedule;
-use serde_json::json;
 use std::future::Future;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
@@ -281,11 +280,8 @@ async fn status_frames(state: Arc<AppState>) {
     loop {
         every.tick().await;
         let status = state.status_json();
-        state.hub.publish(
-            FrameKind::Status,
-            now_us(),
-            json!({ "type": "status", "status": status }),
-        );
+        let frame = crate::protocol::ServerFrame::Status { status };
+        state.hub.publish(now_us(), &frame);
     }
 }
 

@@ -5,8 +5,8 @@
 //! Frames are serialized once and shared (`Arc<str>`) by every client. `tick` frames are
 //! downsampled per client (`subscribe` message); `status` and `event` frames are not.
 
+use crate::protocol::ServerFrame;
 use crate::sync::lock;
-use serde_json::json;
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
@@ -24,6 +24,17 @@ const HISTORY_TICK_INTERVAL_US: i64 = 100_000;
 const HISTORY_EVENTS: usize = 200;
 /// A tick this early for a client's schedule still goes (ticks come on a 20 ms grid).
 const TICK_SLACK_US: i64 = 10_000;
+
+/// `status.websocket` (web/PROTOCOL.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct HubStats {
+    pub clients: usize,
+    /// Frames dropped for slow clients since start (oldest first).
+    pub dropped_total: u64,
+    pub frames_published: u64,
+    /// Frames each client's queue holds.
+    pub queue_capacity: usize,
+}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FrameKind {
@@ -140,8 +151,21 @@ impl Hub {
     }
 
     /// Publish a frame to every client. Never waits on a client.
-    pub fn publish(&self, kind: FrameKind, t_us: i64, frame: serde_json::Value) {
-        let text: Arc<str> = frame.to_string().into();
+    pub fn publish(&self, t_us: i64, frame: &ServerFrame) {
+        let kind = match frame {
+            ServerFrame::Tick(_) => FrameKind::Tick,
+            ServerFrame::Status { .. } => FrameKind::Status,
+            ServerFrame::Event { .. } => FrameKind::Event,
+            // Per client, sent by its own connection task.
+            ServerFrame::Dropped { .. } => return,
+        };
+        let text: Arc<str> = match serde_json::to_string(frame) {
+            Ok(t) => t.into(),
+            Err(e) => {
+                tracing::error!("a websocket frame did not serialise: {e}");
+                return;
+            }
+        };
         self.frames_published.fetch_add(1, Relaxed);
         match kind {
             FrameKind::Tick => {
@@ -159,7 +183,7 @@ impl Hub {
             }
             FrameKind::Event => {
                 // The snapshot lists the events themselves, kept serialized.
-                if let Some(event) = frame.get("event") {
+                if let ServerFrame::Event { event } = frame {
                     let mut e = lock(&self.events);
                     if e.len() >= HISTORY_EVENTS {
                         e.pop_front();
@@ -204,19 +228,20 @@ impl Hub {
             .collect::<Vec<_>>()
             .join(",");
         format!(
-            "{{\"type\":\"snapshot\",\"protocol\":1,\"status\":{status},\"ticks\":[{ticks}],\"events\":[{events}]}}"
+            "{{\"type\":\"snapshot\",\"protocol\":{},\"status\":{status},\"ticks\":[{ticks}],\"events\":[{events}]}}",
+            crate::protocol::PROTOCOL_VERSION
         )
     }
 
-    pub fn stats_json(&self) -> serde_json::Value {
+    pub fn stats(&self) -> HubStats {
         let clients = lock(&self.clients).clone();
         let live: u64 = clients.iter().map(|c| c.dropped_total.load(Relaxed)).sum();
-        json!({
-            "clients": clients.len(),
-            "dropped_total": live + self.dropped_closed.load(Relaxed),
-            "frames_published": self.frames_published.load(Relaxed),
-            "queue_capacity": self.queue_capacity,
-        })
+        HubStats {
+            clients: clients.len(),
+            dropped_total: live + self.dropped_closed.load(Relaxed),
+            frames_published: self.frames_published.load(Relaxed),
+            queue_capacity: self.queue_capacity,
+        }
     }
 }
 
@@ -224,8 +249,20 @@ impl Hub {
 mod tests {
     use super::*;
 
-    fn tick(t: i64) -> serde_json::Value {
-        json!({"type": "tick", "t": t as f64 / 1e6})
+    fn tick(t: i64) -> ServerFrame {
+        ServerFrame::Tick(Box::new(crate::protocol::Tick {
+            t: t as f64 / 1e6,
+            pose: None,
+            sources: Default::default(),
+            deltas: Default::default(),
+            flow: None,
+        }))
+    }
+
+    fn event(message: &str) -> ServerFrame {
+        ServerFrame::Event {
+            event: serde_json::json!({ "message": message }),
+        }
     }
 
     #[test]
@@ -234,14 +271,14 @@ mod tests {
         let slow = hub.connect();
         slow.set_max_rate_hz(MAX_TICK_HZ);
         for i in 0..100 {
-            hub.publish(FrameKind::Tick, i * 100_000, tick(i * 100_000));
+            hub.publish(i * 100_000, &tick(i * 100_000));
         }
         assert_eq!(slow.len(), 8);
         assert_eq!(slow.dropped_total.load(Relaxed), 92);
         // The newest frames survive.
         let frames = slow.drain();
         assert!(frames[7].contains("9.9"), "{}", frames[7]);
-        assert_eq!(hub.stats_json()["dropped_total"], 92);
+        assert_eq!(hub.stats().dropped_total, 92);
     }
 
     #[test]
@@ -253,9 +290,9 @@ mod tests {
         phone.set_max_rate_hz(5.0);
         // 1 s of ticks at 100 Hz.
         for i in 0..100 {
-            hub.publish(FrameKind::Tick, i * 10_000, tick(i * 10_000));
+            hub.publish(i * 10_000, &tick(i * 10_000));
         }
-        hub.publish(FrameKind::Event, 990_000, json!({"type": "event"}));
+        hub.publish(990_000, &event("e"));
         // Ticks at 0, 10, 30, 50, ... 990 ms (50 Hz on a grid, 51 in the first second)
         // and 0, 190, 390, ... 990 ms (5 Hz, 6), plus the event each.
         assert_eq!(fast.len(), 51 + 1);
@@ -266,15 +303,11 @@ mod tests {
     fn snapshot_carries_history_and_events() {
         let hub = Hub::new(10);
         for i in 0..50 {
-            hub.publish(FrameKind::Tick, i * 50_000, tick(i * 50_000));
+            hub.publish(i * 50_000, &tick(i * 50_000));
         }
-        hub.publish(
-            FrameKind::Event,
-            0,
-            json!({"type": "event", "event": {"message": "gps lost"}}),
-        );
+        hub.publish(0, &event("gps lost"));
         let snap: serde_json::Value =
-            serde_json::from_str(&hub.snapshot(json!({"sensors": []}))).expect("json");
+            serde_json::from_str(&hub.snapshot(serde_json::json!({"sensors": []}))).expect("json");
         assert_eq!(snap["type"], "snapshot");
         // 2.5 s of ticks at 20 Hz kept at 10 Hz.
         assert_eq!(snap["ticks"].as_array().map(Vec::len), Some(25));

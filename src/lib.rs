@@ -17,6 +17,7 @@
 //! - [`pipeline`]: the estimator task: samples in, pose/events/live series out.
 //! - [`output`]: the fused pose out: MAVLink (VISION_POSITION_ESTIMATE) and Zenoh.
 //! - [`ros_graph`]: ROS 2 graph presence via the bridge's liveliness tokens.
+//! - [`protocol`]: the frames of `/ws` as types (web/PROTOCOL.md is checked against them).
 //! - [`hub`]: the websocket fan-out: bounded per-client queues that drop oldest.
 //! - [`http`]: the JSON API, the status views ([`http::AppState`]), the page.
 //! - [`app`]: `run(config, listeners, shutdown)`, wiring it all together.
@@ -35,5 +36,6 @@ pub mod hub;
 pub mod ingest;
 pub mod output;
 pub mod pipeline;
+pub mod protocol;
 pub mod ros_graph;
 pub mod sim;

@@ -9,10 +9,11 @@ use crate::estimator::{
 };
 use crate::fusion::{Fusion, InputList};
 use crate::health::{HealthConfig, HealthState, Reason};
-use crate::hub::{FrameKind, Hub};
+use crate::hub::Hub;
 use crate::ingest::Ingest;
+use crate::protocol::{FlowPlot, ServerFrame, Tick, TickPose};
 use crate::sample::{Micros, Sample};
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
@@ -60,8 +61,9 @@ impl PipelineShared {
     }
 
     /// `/api/v1/status`'s `estimator` (null before the first refresh).
-    pub fn status_json(&self) -> Value {
-        serde_json::to_value(&*crate::sync::lock(&self.status)).unwrap_or(Value::Null)
+    /// The estimator's latest status (`None` before the first refresh).
+    pub fn estimator_status(&self) -> Option<EstimatorStatus> {
+        crate::sync::lock(&self.status).clone()
     }
 
     pub fn health(&self) -> BTreeMap<String, SensorVerdict> {
@@ -102,7 +104,7 @@ pub struct TickBuilder {
 
 impl TickBuilder {
     /// A tick if one is due at estimator time `t`.
-    pub fn build(&mut self, est: &Estimator, t: i64, started_us: Micros) -> Option<Value> {
+    pub fn build(&mut self, est: &Estimator, t: i64, started_us: Micros) -> Option<Tick> {
         if let Some(last) = self.last_tick_us {
             if t >= last && t - last < TICK_INTERVAL_US {
                 return None;
@@ -119,13 +121,13 @@ impl TickBuilder {
             self.sent.insert(key, p.time_us);
             Some((p.source.as_str(), p.value))
         };
-        let mut sources = serde_json::Map::new();
+        let mut sources = BTreeMap::new();
         for topic in DebugTopic::POSITIONS {
             if let Some((src, v)) = fresh(topic) {
-                sources.insert(src.to_string(), json!(v));
+                sources.insert(src.to_string(), v);
             }
         }
-        let mut deltas = serde_json::Map::new();
+        let mut deltas = BTreeMap::new();
         for topic in DebugTopic::DELTAS {
             if let Some((src, v)) = fresh(topic) {
                 let name = if topic == DebugTopic::FusionDisplace {
@@ -133,7 +135,7 @@ impl TickBuilder {
                 } else {
                     src
                 };
-                deltas.insert(name.to_string(), json!(v));
+                deltas.insert(name.to_string(), v);
             }
         }
         let flow = match (
@@ -141,78 +143,29 @@ impl TickBuilder {
             fresh(DebugTopic::FlowGyro),
             fresh(DebugTopic::CompensatedOf),
         ) {
-            (Some((_, raw)), Some((_, gyro)), Some((_, comp))) => json!({
-                "raw": [raw[0], raw[1]],
-                "gyro": [gyro[0], gyro[1]],
-                "comp": [comp[0], comp[1]],
+            (Some((_, raw)), Some((_, gyro)), Some((_, comp))) => Some(FlowPlot {
+                raw: [raw[0], raw[1]],
+                gyro: [gyro[0], gyro[1]],
+                comp: [comp[0], comp[1]],
             }),
-            _ => Value::Null,
+            _ => None,
         };
-        let pose = est.pose().map(|p| TickPose::of(&p));
-        Some(json!({
-            "type": "tick",
-            "t": (t - started_us) as f64 / 1e6,
-            "pose": pose,
-            "sources": sources,
-            "deltas": deltas,
-            "flow": flow,
-        }))
-    }
-}
-
-fn round(v: f64, digits: i32) -> f64 {
-    let k = 10f64.powi(digits);
-    (v * k).round() / k
-}
-
-/// `tick.pose` (web/PROTOCOL.md): the fused pose as the dashboard plots it, rounded to
-/// what a plot shows (0.1 mm, 1 mm/s).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct TickPose {
-    pub x: f64,
-    pub y: f64,
-    pub z: f64,
-    /// ENU heading, rad (0 = east, counter-clockwise).
-    pub yaw: f64,
-    pub vx: f64,
-    pub vy: f64,
-    pub vz: f64,
-    pub valid: bool,
-    pub invalid_reason: Option<String>,
-    pub reset_counter: u8,
-    /// Position σ per axis, m.
-    pub std: [f64; 3],
-    pub sources: Vec<String>,
-}
-
-impl TickPose {
-    pub fn of(p: &FusedPose) -> Self {
-        let d = p.position_cov.diagonal();
-        Self {
-            x: round(p.position.x, 4),
-            y: round(p.position.y, 4),
-            z: round(p.position.z, 4),
-            yaw: round(p.orientation.euler_angles().2, 4),
-            vx: round(p.velocity.x, 3),
-            vy: round(p.velocity.y, 3),
-            vz: round(p.velocity.z, 3),
-            valid: p.valid,
-            invalid_reason: p.invalid_reason.clone(),
-            reset_counter: p.reset_counter,
-            std: [
-                round(d.x.sqrt(), 4),
-                round(d.y.sqrt(), 4),
-                round(d.z.sqrt(), 4),
-            ],
-            sources: p.sources.clone(),
-        }
+        Some(Tick {
+            t: (t - started_us) as f64 / 1e6,
+            pose: est.pose().map(|p| TickPose::of(&p)),
+            sources,
+            deltas,
+            flow,
+        })
     }
 }
 
 /// An estimator event as the hub and logs carry it.
-pub fn event_frame(e: &EstimatorEvent, started_us: Micros) -> Value {
+pub fn event_frame(e: &EstimatorEvent, started_us: Micros) -> ServerFrame {
     let t = (e.time_us - started_us) as f64 / 1e6;
-    json!({ "type": "event", "event": e.to_json(t, true) })
+    ServerFrame::Event {
+        event: e.to_json(t, true),
+    }
 }
 
 /// Everything the estimator task is built from.
@@ -262,8 +215,9 @@ pub async fn run(
                         pose_tx.send_replace(Some(Arc::new(p)));
                     }
                 }
-                if let Some(frame) = ticks.build(est, t, started) {
-                    shared.hub.publish(FrameKind::Tick, t, frame);
+                if let Some(tick) = ticks.build(est, t, started) {
+                    let frame = ServerFrame::Tick(Box::new(tick));
+                    shared.hub.publish(t, &frame);
                 }
             }
             _ = health_timer.tick() => {
@@ -356,9 +310,10 @@ pub fn publish_events(shared: &PipelineShared, events: &[EstimatorEvent]) {
             "{}",
             e.message
         );
-        let frame = event_frame(e, shared.started_us);
+        let t = (e.time_us - shared.started_us) as f64 / 1e6;
+        let event = e.to_json(t, true);
         // No receiver is not an error: outputs may be off.
-        let _ = shared.events_tx.send(Arc::new(frame["event"].clone()));
-        shared.hub.publish(FrameKind::Event, e.time_us, frame);
+        let _ = shared.events_tx.send(Arc::new(event.clone()));
+        shared.hub.publish(e.time_us, &ServerFrame::Event { event });
     }
 }

@@ -5,6 +5,7 @@
 
 use super::state::Status;
 use crate::health::HealthState;
+use crate::output::OutputDetail;
 use prometheus_client::encoding::text::encode;
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
@@ -214,39 +215,36 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
         }
     }
 
-    let est = &status.estimator;
-    let valid = est["valid"].as_bool().unwrap_or(false);
+    let est = status.estimator.as_ref();
     m.gauge(
         "estimate_valid",
         "1 if the fused estimate is valid (what the autopilot gets)",
-        flag(valid),
+        flag(est.is_some_and(|e| e.valid)),
     );
     m.gauge(
         "estimate_initialised",
         "1 once the filter has started",
-        flag(est["initialised"].as_bool().unwrap_or(false)),
+        flag(est.is_some_and(|e| e.initialised)),
     );
     m.gauge(
         "estimate_reset_counter",
         "The pose's reset counter (wraps at 256)",
-        est["reset_counter"].as_f64().unwrap_or(0.0),
+        est.map_or(0.0, |e| f64::from(e.reset_counter)),
     );
     let std = m.gauges_unit(
         "estimate_position_std",
         "Position standard deviation per axis (ENU)",
         Unit::Meters,
     );
-    if let Some(v) = est["position_std"].as_array() {
+    if let Some(v) = est.and_then(|e| e.position_std) {
         for (axis, s) in ["x", "y", "z"].iter().zip(v) {
-            if let Some(s) = s.as_f64() {
-                std.get_or_create(&vec![("axis", axis.to_string())]).set(s);
-            }
+            std.get_or_create(&vec![("axis", axis.to_string())]).set(s);
         }
     }
     m.counter(
         "estimator_late_dropped",
         "Samples older than the estimator's history, dropped",
-        est["late_dropped"].as_u64().unwrap_or(0),
+        est.map_or(0, |e| e.late_dropped),
     );
 
     let sent = m.counters(
@@ -260,41 +258,34 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
     let errors = m.counters("output_errors", "Send errors per output");
     let withheld = m.counters(
         "output_withheld",
-        "Poses not sent to the autopilot because the estimate was invalid",
+        "Poses not sent to the autopilot because the estimate was invalid, stale or non-finite",
     );
     let sending = m.gauges("output_sending", "1 if the output is sending now");
     for o in &status.outputs {
-        let name = o["name"].as_str().unwrap_or("?").to_string();
-        let l: Labels = vec![
-            ("output", name),
-            ("kind", o["kind"].as_str().unwrap_or("?").to_string()),
-        ];
-        let n = |k: &str| o[k].as_u64().unwrap_or(0);
-        sent.get_or_create(&l).inc_by(n("sent"));
-        out_dropped.get_or_create(&l).inc_by(n("dropped"));
-        errors.get_or_create(&l).inc_by(n("errors"));
-        if o.get("withheld").is_some() {
-            withheld.get_or_create(&l).inc_by(n("withheld"));
+        let l: Labels = vec![("output", o.name.to_string()), ("kind", o.kind.to_string())];
+        sent.get_or_create(&l).inc_by(o.sent);
+        out_dropped.get_or_create(&l).inc_by(o.dropped);
+        errors.get_or_create(&l).inc_by(o.errors);
+        if let OutputDetail::Mavlink { withheld: w, .. } = &o.detail {
+            withheld.get_or_create(&l).inc_by(*w);
         }
-        sending
-            .get_or_create(&l)
-            .set(flag(o["sending"].as_bool().unwrap_or(false)));
+        sending.get_or_create(&l).set(flag(o.sending));
     }
 
     let ws = &status.websocket;
     m.gauge(
         "websocket_clients",
         "Dashboard clients connected",
-        ws["clients"].as_f64().unwrap_or(0.0),
+        ws.clients as f64,
     );
     m.counter(
         "websocket_dropped",
         "Frames dropped for slow websocket clients (oldest first)",
-        ws["dropped_total"].as_u64().unwrap_or(0),
+        ws.dropped_total,
     );
     m.counter(
         "controls_refused",
-        "Control requests refused for a missing or wrong token",
+        "Control requests refused for a missing or wrong token, or too many tries",
         status.controls.refused,
     );
 

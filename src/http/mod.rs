@@ -4,6 +4,7 @@
 
 use crate::event::Event;
 use crate::pipeline::Command;
+use crate::protocol::{ClientMessage, ServerFrame};
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{ConnectInfo, DefaultBodyLimit, Path, State};
 use axum::http::{header, HeaderMap, StatusCode};
@@ -211,12 +212,10 @@ async fn client(s: Arc<AppState>, mut socket: WebSocket) {
         tokio::select! {
             m = socket.recv() => match m {
                 Some(Ok(Message::Text(t))) => {
-                    if let Ok(v) = serde_json::from_str::<serde_json::Value>(t.as_str()) {
-                        if v["type"] == "subscribe" {
-                            if let Some(hz) = v["max_rate_hz"].as_f64() {
-                                queue.set_max_rate_hz(hz);
-                            }
-                        }
+                    match serde_json::from_str::<ClientMessage>(t.as_str()) {
+                        Ok(ClientMessage::Subscribe { max_rate_hz }) => queue.set_max_rate_hz(max_rate_hz),
+                        // Not ours to act on; a client may send what a newer page knows.
+                        Err(_) => {}
                     }
                 }
                 Some(Ok(Message::Close(_))) | None | Some(Err(_)) => break,
@@ -226,15 +225,12 @@ async fn client(s: Arc<AppState>, mut socket: WebSocket) {
         }
         let dropped = queue.dropped_unreported.swap(0, Relaxed);
         if dropped > 0 {
-            let notice = json!({
-                "type": "dropped",
-                "dropped": dropped,
-                "total": queue.dropped_total.load(Relaxed),
-            });
-            ok &= socket
-                .send(Message::Text(notice.to_string().into()))
-                .await
-                .is_ok();
+            let notice = ServerFrame::Dropped {
+                dropped,
+                total: queue.dropped_total.load(Relaxed),
+            };
+            let text = serde_json::to_string(&notice).unwrap_or_default();
+            ok &= socket.send(Message::Text(text.into())).await.is_ok();
         }
         for f in queue.drain() {
             if !ok {

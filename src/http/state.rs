@@ -3,12 +3,14 @@
 
 use crate::clock::now_us;
 use crate::config::Config;
+use crate::estimator::EstimatorStatus;
 use crate::event::{EstimatorEvent, Event};
 use crate::health::{HealthState, Reason};
-use crate::hub::Hub;
+use crate::hub::{Hub, HubStats};
 use crate::ingest::{Ingest, InputStatus};
 use crate::output::mavlink_out::MavlinkStats;
 use crate::output::zenoh_out::ZenohOutStats;
+use crate::output::OutputStatus;
 use crate::pipeline::{self, CommandSender, PipelineShared, PoseReceiver};
 use crate::sample::{Micros, Sample};
 use crate::sim::faults::FaultSchedule;
@@ -76,13 +78,13 @@ impl AppState {
                 consumed: self.pipeline.consumed.load(Relaxed),
             },
             sensors: self.sensors(now),
-            estimator: self.pipeline.status_json(),
-            outputs: [
-                self.mavlink_stats.status_json(now, cfg.mavlink.rate_hz),
+            estimator: self.pipeline.estimator_status(),
+            outputs: vec![
+                self.mavlink_stats.status(now, cfg.mavlink.rate_hz),
                 self.zenoh_out_stats
-                    .status_json(&cfg.output, &cfg.output.prefix_for(&cfg.service.vehicle)),
+                    .status(&cfg.output, &cfg.output.prefix_for(&cfg.service.vehicle)),
             ],
-            websocket: self.hub.stats_json(),
+            websocket: self.hub.stats(),
             controls: Controls {
                 enabled: !cfg.http.token.is_empty(),
                 refused: self.controls_refused.load(Relaxed),
@@ -185,23 +187,22 @@ impl AppState {
         json!({
             "time_us": now_us(),
             "sensors": self.sensors(now_us()),
-            "estimator": self.pipeline.status_json(),
+            "estimator": self.pipeline.estimator_status(),
         })
     }
 }
 
-/// `GET /api/v1/status`: the parts this module assembles are typed; the estimator,
-/// outputs and websocket views come from their own modules.
+/// `GET /api/v1/status`: every part typed, each view from the module that owns it.
 #[derive(Debug, Clone, Serialize)]
 pub struct Status {
     pub service: ServiceInfo,
     pub ingest: IngestInfo,
     pub sensors: Vec<SensorView>,
-    /// [`crate::estimator::EstimatorStatus`], null before the estimator's first refresh.
-    pub estimator: serde_json::Value,
+    /// Null before the estimator's first refresh.
+    pub estimator: Option<EstimatorStatus>,
     /// The MAVLink output, then the Zenoh output.
-    pub outputs: [serde_json::Value; 2],
-    pub websocket: serde_json::Value,
+    pub outputs: Vec<OutputStatus>,
+    pub websocket: HubStats,
     pub controls: Controls,
 }
 

@@ -69,7 +69,7 @@ pub struct MavlinkStats {
     pub links: Vec<(String, Arc<LinkStats>)>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct LinkStatus {
     pub endpoint: String,
     pub sent: u64,
@@ -80,7 +80,7 @@ pub struct LinkStatus {
 }
 
 impl MavlinkStats {
-    pub fn status_json(&self, now: i64, rate_hz: f64) -> serde_json::Value {
+    pub fn status(&self, now: i64, rate_hz: f64) -> super::OutputStatus {
         let last = self.last_sent_us.load(Relaxed) as i64;
         let reason = crate::sync::lock(&self.not_sending_reason).clone();
         let links: Vec<LinkStatus> = self
@@ -96,25 +96,32 @@ impl MavlinkStats {
             })
             .collect();
         let sum = |f: fn(&LinkStatus) -> u64| links.iter().map(f).sum::<u64>();
-        serde_json::json!({
-            "name": "mavlink",
-            "kind": "mavlink",
-            "endpoint": self.links.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", "),
-            "configured_rate_hz": rate_hz,
-            "rate_hz": crate::sync::lock(&self.rate).rate_hz(),
-            "sent": self.vpe_sent.load(Relaxed),
-            "heartbeats": self.heartbeats.load(Relaxed),
-            "origin_sent": self.origin_sent.load(Relaxed),
-            "withheld": self.withheld.load(Relaxed),
-            "dropped": sum(|l| l.dropped),
-            "errors": sum(|l| l.errors),
-            "last_error": links.iter().find_map(|l| l.last_error.clone()),
-            "last_sent_age_ms": (last > 0).then(|| (now - last) as f64 / 1e3),
-            "reset_counter": self.last_reset_counter.load(Relaxed),
-            "sending": reason.is_none() && last > 0,
-            "not_sending_reason": reason,
-            "links": links,
-        })
+        super::OutputStatus {
+            name: "mavlink",
+            kind: "mavlink",
+            endpoint: self
+                .links
+                .iter()
+                .map(|(n, _)| n.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+            sent: self.vpe_sent.load(Relaxed),
+            dropped: sum(|l| l.dropped),
+            errors: sum(|l| l.errors),
+            last_error: links.iter().find_map(|l| l.last_error.clone()),
+            sending: reason.is_none() && last > 0,
+            not_sending_reason: reason,
+            detail: super::OutputDetail::Mavlink {
+                configured_rate_hz: rate_hz,
+                rate_hz: crate::sync::lock(&self.rate).rate_hz(),
+                heartbeats: self.heartbeats.load(Relaxed),
+                origin_sent: self.origin_sent.load(Relaxed),
+                withheld: self.withheld.load(Relaxed),
+                last_sent_age_ms: (last > 0).then(|| (now - last) as f64 / 1e3),
+                reset_counter: self.last_reset_counter.load(Relaxed),
+                links,
+            },
+        }
     }
 }
 

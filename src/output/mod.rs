@@ -7,3 +7,42 @@
 pub mod mavlink_out;
 pub mod vpe;
 pub mod zenoh_out;
+
+/// One output as `/api/v1/status` shows it (`outputs[]`, web/PROTOCOL.md).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct OutputStatus {
+    pub name: &'static str,
+    pub kind: &'static str,
+    pub endpoint: String,
+    /// MAVLink: VISION_POSITION_ESTIMATE sent; Zenoh: poses published.
+    pub sent: u64,
+    pub dropped: u64,
+    pub errors: u64,
+    pub last_error: Option<String>,
+    pub sending: bool,
+    pub not_sending_reason: Option<String>,
+    #[serde(flatten)]
+    pub detail: OutputDetail,
+}
+
+/// What only one kind of output has.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(untagged)]
+pub enum OutputDetail {
+    Mavlink {
+        configured_rate_hz: f64,
+        rate_hz: f64,
+        heartbeats: u64,
+        origin_sent: u64,
+        /// Ticks with nothing sent because the estimate was invalid, stale or non-finite.
+        withheld: u64,
+        last_sent_age_ms: Option<f64>,
+        reset_counter: u64,
+        links: Vec<mavlink_out::LinkStatus>,
+    },
+    Zenoh {
+        debug_points: u64,
+        events: u64,
+        health: u64,
+    },
+}

@@ -8,7 +8,7 @@ use crate::codec::EncodeError;
 use crate::config::OutputConfig;
 use crate::estimator::{DebugSeries, DebugTopic, FusedPose};
 use crate::pipeline::{DebugReceiver, PoseReceiver};
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
@@ -38,21 +38,29 @@ impl ZenohOutStats {
         *l = Some(e);
     }
 
-    pub fn status_json(&self, cfg: &OutputConfig, prefix: &str) -> Value {
-        json!({
-            "name": "zenoh",
-            "kind": "zenoh",
-            "endpoint": format!("{prefix}/{{pose,health,events}}{}", if cfg.ros2 { format!(", {}", cfg.ros2_pose_key) } else { String::new() }),
-            "sent": self.poses.load(Relaxed),
-            "debug_points": self.debug_points.load(Relaxed),
-            "events": self.events.load(Relaxed),
-            "health": self.health.load(Relaxed),
-            "errors": self.errors.load(Relaxed),
-            "dropped": 0,
-            "last_error": crate::sync::lock(&self.last_error).clone(),
-            "sending": true,
-            "not_sending_reason": null,
-        })
+    pub fn status(&self, cfg: &OutputConfig, prefix: &str) -> super::OutputStatus {
+        let ros = if cfg.ros2 {
+            format!(", {}", cfg.ros2_pose_key)
+        } else {
+            String::new()
+        };
+        super::OutputStatus {
+            name: "zenoh",
+            kind: "zenoh",
+            endpoint: format!("{prefix}/{{pose,health,events}}{ros}"),
+            sent: self.poses.load(Relaxed),
+            // Zenoh's put does not queue: nothing to drop.
+            dropped: 0,
+            errors: self.errors.load(Relaxed),
+            last_error: crate::sync::lock(&self.last_error).clone(),
+            sending: true,
+            not_sending_reason: None,
+            detail: super::OutputDetail::Zenoh {
+                debug_points: self.debug_points.load(Relaxed),
+                events: self.events.load(Relaxed),
+                health: self.health.load(Relaxed),
+            },
+        }
     }
 }
 
