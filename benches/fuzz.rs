@@ -1,0 +1,397 @@
+//! Mutation fuzzing of every decoder the service exposes to the outside, from real seeds
+//! (the golden vectors and the payloads captured from the real bridges in tests/data):
+//! ROS 2 CDR (each supported type, both byte orders), ROS 1, mavlink-server JSON, raw
+//! MAVLink frames (v1 and v2, several per payload), skyfuse JSON, the TOML config, the
+//! websocket client message and the fault-control body.
+//!
+//! Each input is a seed mutated 1–8 times (bit flips, random bytes, interesting values,
+//! truncation, extension, duplication and deletion of runs, splices with another seed,
+//! pure random bytes now and then). A panic is caught, counted and reported with the
+//! input; memory is read before and after (resident set) to show it stays bounded.
+//!
+//! `cargo bench --bench fuzz -- --iters 10000000` (per target; BENCHMARKS.md has the
+//! figures); `cargo bench --bench fuzz -- mavlink_raw` runs one target. Under
+//! `cargo test` (no `--bench`) every target runs 20 000 inputs and any panic fails.
+//! Not coverage-guided: cargo-fuzz needs a nightly toolchain, which this project's
+//! machines do not have.
+
+use rand::rngs::SmallRng;
+use rand::{Rng, SeedableRng};
+use skyfuse::codec::{self, Format, RosType};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::time::Instant;
+
+const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data");
+
+fn hex(s: &str) -> Vec<u8> {
+    (0..s.len() / 2)
+        .filter_map(|i| u8::from_str_radix(s.get(2 * i..2 * i + 2)?, 16).ok())
+        .collect()
+}
+
+fn read_json(name: &str) -> serde_json::Value {
+    let text = std::fs::read_to_string(format!("{DATA}/{name}"))
+        .unwrap_or_else(|e| panic!("{DATA}/{name}: {e}"));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+fn read_jsonl(name: &str) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(format!("{DATA}/{name}"))
+        .unwrap_or_else(|e| panic!("{DATA}/{name}: {e}"))
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect()
+}
+
+type Decode = Box<dyn Fn(&[u8]) -> bool>;
+
+/// One fuzz target: its seeds and what it decodes (true: accepted).
+struct Target {
+    name: &'static str,
+    seeds: Vec<Vec<u8>>,
+    decode: Decode,
+}
+
+fn ros_seeds(ros2: bool) -> Vec<(RosType, Vec<u8>)> {
+    let v = read_json("ros_vectors.json");
+    let mut out = vec![];
+    for vec in v["vectors"].as_array().into_iter().flatten() {
+        let Some(ty) = vec["type"].as_str().and_then(RosType::from_name) else {
+            continue;
+        };
+        let keys: &[&str] = if ros2 {
+            &["cdr_le", "cdr_be"]
+        } else {
+            &["ros1"]
+        };
+        for k in keys {
+            if let Some(h) = vec[*k].as_str() {
+                out.push((ty, hex(h)));
+            }
+        }
+    }
+    if ros2 {
+        for s in read_jsonl("bridges/ros2dds-samples.jsonl") {
+            let ty = s["ros_type"].as_str().and_then(RosType::from_name);
+            if let (Some(ty), Some(h)) = (ty, s["payload_hex"].as_str()) {
+                out.push((ty, hex(h)));
+            }
+        }
+    }
+    out
+}
+
+fn targets() -> Vec<Target> {
+    let mut t = vec![];
+    for ros2 in [true, false] {
+        let seeds = ros_seeds(ros2);
+        let types: Vec<RosType> = RosType::ALL.to_vec();
+        let format = if ros2 { Format::Ros2 } else { Format::Ros1 };
+        // The first byte of the input picks the type the bytes are decoded as, so every
+        // decoder sees every seed's mutations too.
+        t.push(Target {
+            name: if ros2 { "ros2_cdr" } else { "ros1" },
+            seeds: seeds
+                .iter()
+                .map(|(ty, b)| {
+                    let i = types.iter().position(|x| x == ty).unwrap_or(0) as u8;
+                    std::iter::once(i).chain(b.iter().copied()).collect()
+                })
+                .collect(),
+            decode: Box::new(move |b: &[u8]| {
+                let Some((&i, rest)) = b.split_first() else {
+                    return false;
+                };
+                let ty = types[usize::from(i) % types.len()];
+                let mut out = vec![];
+                codec::decode(format, Some(ty), rest, &mut out).is_ok()
+            }),
+        });
+    }
+    let mav_json: Vec<Vec<u8>> = read_jsonl("bridges/mavlink-server-samples.jsonl")
+        .iter()
+        .filter_map(|s| s["payload"].as_str().map(|p| p.as_bytes().to_vec()))
+        .chain(
+            read_json("mavlink_vectors.json")["vectors"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter_map(|v| v["json"].as_str().map(|p| p.as_bytes().to_vec())),
+        )
+        .collect();
+    t.push(Target {
+        name: "mavlink_json",
+        seeds: mav_json,
+        decode: Box::new(|b: &[u8]| {
+            let mut out = vec![];
+            codec::decode(Format::MavlinkJson, None, b, &mut out).is_ok()
+        }),
+    });
+    let frames: Vec<Vec<u8>> = read_json("mavlink_vectors.json")["vectors"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .flat_map(|v| ["v2_hex", "v1_hex"].map(|k| v[k].as_str().map(hex)))
+        .flatten()
+        .collect();
+    // Several frames per payload, as mavlink-server's raw keys carry them.
+    let mut raw = frames.clone();
+    for w in frames.windows(3) {
+        raw.push(w.concat());
+    }
+    t.push(Target {
+        name: "mavlink_raw",
+        seeds: raw,
+        decode: Box::new(|b: &[u8]| {
+            let mut out = vec![];
+            codec::decode(Format::MavlinkRaw, None, b, &mut out).is_ok()
+        }),
+    });
+    t.push(Target {
+        name: "skyfuse_json",
+        seeds: skyfuse_json_seeds(),
+        decode: Box::new(|b: &[u8]| {
+            let mut out = vec![];
+            codec::decode(Format::Json, None, b, &mut out).is_ok()
+        }),
+    });
+    let config =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/default.toml"))
+            .unwrap_or_default();
+    let sitl: Vec<Vec<u8>> = [
+        "skyfuse-gps.toml",
+        "skyfuse-nogps.toml",
+        "skyfuse-gps-raw.toml",
+    ]
+    .iter()
+    .filter_map(|n| std::fs::read(format!("{DATA}/sitl/{n}")).ok())
+    .collect();
+    t.push(Target {
+        name: "config_toml",
+        seeds: std::iter::once(config.into_bytes()).chain(sitl).collect(),
+        decode: Box::new(|b: &[u8]| {
+            std::str::from_utf8(b)
+                .ok()
+                .is_some_and(|s| skyfuse::config::Config::from_toml_str(s, "fuzz").is_ok())
+        }),
+    });
+    t.push(Target {
+        name: "ws_client",
+        seeds: vec![
+            br#"{"type": "subscribe", "max_rate_hz": 5}"#.to_vec(),
+            br#"{"type":"subscribe","max_rate_hz":50.0}"#.to_vec(),
+        ],
+        decode: Box::new(|b: &[u8]| {
+            serde_json::from_slice::<skyfuse::protocol::ClientMessage>(b).is_ok()
+        }),
+    });
+    t.push(Target {
+        name: "control_body",
+        seeds: vec![
+            br#"{"sensor": "gps", "fault": "stop", "duration_s": 10}"#.to_vec(),
+            br#"{"sensor":"flow","fault":"dark-floor"}"#.to_vec(),
+            br#"{"sensor":"t265","fault":"clear"}"#.to_vec(),
+        ],
+        decode: Box::new(|b: &[u8]| {
+            serde_json::from_slice::<skyfuse::sim::faults::FaultRequest>(b).is_ok()
+        }),
+    });
+    t
+}
+
+/// skyfuse's own JSON, as the simulator publishes it: one sample of each kind.
+fn skyfuse_json_seeds() -> Vec<Vec<u8>> {
+    use skyfuse::sim::sensors::DEMO_STREAMS;
+    use skyfuse::sim::Simulator;
+    let mut seen = std::collections::BTreeSet::new();
+    let mut out = vec![];
+    for e in Simulator::new(DEMO_STREAMS, 1, 5.0) {
+        let stream = &DEMO_STREAMS[e.stream];
+        if !seen.insert(stream.input_id) {
+            continue;
+        }
+        let mav = codec::MavIdentity {
+            system_id: 1,
+            component_id: 1,
+            sequence: 0,
+        };
+        let t = (e.measured_t * 1e6) as i64;
+        if let Ok(enc) = codec::encode_sample(Format::Json, None, t, &e.data, mav) {
+            out.push(enc.payload);
+        }
+    }
+    out
+}
+
+const INTERESTING: [u8; 10] = [0, 1, 0x7f, 0x80, 0xff, 0xfe, b'"', b'{', b'}', b'\\'];
+
+fn mutate(rng: &mut SmallRng, seeds: &[Vec<u8>], buf: &mut Vec<u8>) {
+    buf.clear();
+    if rng.gen_ratio(1, 64) {
+        let n = rng.gen_range(0..256);
+        buf.extend((0..n).map(|_| rng.gen::<u8>()));
+        return;
+    }
+    buf.extend_from_slice(&seeds[rng.gen_range(0..seeds.len())]);
+    for _ in 0..rng.gen_range(1..=8) {
+        let len = buf.len();
+        match rng.gen_range(0..9) {
+            0 if len > 0 => {
+                let i = rng.gen_range(0..len);
+                buf[i] ^= 1 << rng.gen_range(0..8);
+            }
+            1 if len > 0 => {
+                let i = rng.gen_range(0..len);
+                buf[i] = rng.gen();
+            }
+            2 if len > 0 => {
+                let i = rng.gen_range(0..len);
+                buf[i] = INTERESTING[rng.gen_range(0..INTERESTING.len())];
+            }
+            3 if len > 0 => buf.truncate(rng.gen_range(0..len)),
+            4 => {
+                let n = rng.gen_range(1..32);
+                buf.extend((0..n).map(|_| rng.gen::<u8>()));
+            }
+            5 if len > 1 => {
+                // Delete a run.
+                let a = rng.gen_range(0..len);
+                let b = rng.gen_range(a..len.min(a + 16) + 1).min(len);
+                buf.drain(a..b);
+            }
+            6 if len > 1 => {
+                // Duplicate a run in place.
+                let a = rng.gen_range(0..len);
+                let b = (a + rng.gen_range(1..16)).min(len);
+                let run: Vec<u8> = buf[a..b].to_vec();
+                let at = rng.gen_range(0..=buf.len());
+                buf.splice(at..at, run);
+            }
+            7 => {
+                // Splice: this seed's head, another seed's tail.
+                let other = &seeds[rng.gen_range(0..seeds.len())];
+                let cut = rng.gen_range(0..=len);
+                let from = rng.gen_range(0..=other.len());
+                buf.truncate(cut);
+                buf.extend_from_slice(&other[from..]);
+            }
+            8 if len >= 4 => {
+                // A 16- or 32-bit length/count field set to an extreme.
+                let i = rng.gen_range(0..len - 3);
+                let v: [u8; 4] = match rng.gen_range(0..4) {
+                    0 => [0xff; 4],
+                    1 => [0; 4],
+                    2 => 0x7fff_ffffu32.to_le_bytes(),
+                    _ => 0x8000_0000u32.to_be_bytes(),
+                };
+                buf[i..i + 4].copy_from_slice(&v);
+            }
+            _ => {}
+        }
+    }
+}
+
+fn rss_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/statm")
+        .ok()
+        .and_then(|s| s.split_whitespace().nth(1)?.parse::<u64>().ok())
+        .map_or(0, |pages| pages * 4)
+}
+
+struct Outcome {
+    inputs: u64,
+    accepted: u64,
+    panics: u64,
+    first_panic: Option<Vec<u8>>,
+    secs: f64,
+    rss_before_kib: u64,
+    rss_after_kib: u64,
+}
+
+fn run(target: &Target, iters: u64, seed: u64) -> Outcome {
+    let mut rng = SmallRng::seed_from_u64(seed);
+    let mut buf = Vec::with_capacity(4096);
+    let (mut accepted, mut panics, mut first_panic) = (0, 0, None);
+    // Warm up before measuring memory: the allocator's first arenas are not growth.
+    for _ in 0..iters.min(10_000) {
+        mutate(&mut rng, &target.seeds, &mut buf);
+        let _ = catch_unwind(AssertUnwindSafe(|| (target.decode)(&buf)));
+    }
+    let rss_before_kib = rss_kib();
+    let start = Instant::now();
+    for _ in 0..iters {
+        mutate(&mut rng, &target.seeds, &mut buf);
+        match catch_unwind(AssertUnwindSafe(|| (target.decode)(&buf))) {
+            Ok(true) => accepted += 1,
+            Ok(false) => {}
+            Err(_) => {
+                panics += 1;
+                first_panic.get_or_insert_with(|| buf.clone());
+            }
+        }
+    }
+    Outcome {
+        inputs: iters,
+        accepted,
+        panics,
+        first_panic,
+        secs: start.elapsed().as_secs_f64(),
+        rss_before_kib,
+        rss_after_kib: rss_kib(),
+    }
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let bench = args.iter().any(|a| a == "--bench");
+    let iters = args
+        .iter()
+        .position(|a| a == "--iters")
+        .and_then(|i| args.get(i + 1)?.parse().ok())
+        .unwrap_or(if bench { 10_000_000 } else { 20_000 });
+    let only = args
+        .iter()
+        .skip(1)
+        .find(|a| !a.starts_with('-') && a.parse::<u64>().is_err());
+    // Panics are caught and counted; their messages would flood the output.
+    let quiet = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    println!(
+        "target          seeds      inputs   accepted  panics   inputs/s  RSS before→after KiB"
+    );
+    let mut failed = vec![];
+    for t in targets() {
+        if only.is_some_and(|o| o != t.name) {
+            continue;
+        }
+        assert!(!t.seeds.is_empty(), "{}: no seeds read", t.name);
+        let o = run(&t, iters, 0x5eed);
+        println!(
+            "{:<14} {:>6} {:>11} {:>10} {:>7} {:>10.0}   {} → {}",
+            t.name,
+            t.seeds.len(),
+            o.inputs,
+            o.accepted,
+            o.panics,
+            o.inputs as f64 / o.secs,
+            o.rss_before_kib,
+            o.rss_after_kib
+        );
+        if let Some(p) = o.first_panic {
+            failed.push(format!(
+                "{}: {} panics, first on {:02x?}",
+                t.name, o.panics, p
+            ));
+        }
+        // Every target must accept some of its mutants (else the seeds or the harness are
+        // wrong and nothing deep is reached) and reject some.
+        if o.accepted == 0 || o.accepted == o.inputs {
+            failed.push(format!(
+                "{}: accepted {} of {}",
+                t.name, o.accepted, o.inputs
+            ));
+        }
+    }
+    std::panic::set_hook(quiet);
+    assert!(failed.is_empty(), "{}", failed.join("\n"));
+}
