@@ -203,3 +203,52 @@ fn no_position_source_means_no_vision_position_estimate() {
         "no reason logged"
     );
 }
+
+#[test]
+fn a_serial_link_absent_at_start_unplugged_and_plugged_back_carries_vpe() {
+    // A pseudo-terminal pair stands in for a USB serial adapter (tests/py/pty_serial.py):
+    // the path does not exist when skyfuse starts, appears, vanishes, comes back.
+    let dir = std::env::temp_dir().join(format!("skyfuse-pty-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let link = dir.join("ttyFC");
+    let endpoint = format!("serial:{}:57600", link.display());
+    let svc = Service::start(&["demo", "--no-browser", "--mavlink", &endpoint], &[]);
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
+    // Absent so far: refused and counted, not fatal.
+    let s = svc.get_json("/api/v1/status");
+    let link_status = &s["outputs"][0]["links"][0];
+    assert_eq!(link_status["connected"], false, "{link_status}");
+    assert!(
+        link_status["last_error"]
+            .as_str()
+            .is_some_and(|e| e.contains("cannot open")),
+        "{link_status}"
+    );
+    let out = json(&run_py(
+        "pty_serial.py",
+        &[
+            "--link",
+            &link.display().to_string(),
+            "--seconds",
+            "5",
+            "--gap",
+            "3",
+        ],
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    println!("serial link, plugged / unplugged 3 s / plugged: {out}");
+    for phase in ["before", "after"] {
+        let p = &out[phase];
+        // 30 Hz VPE; the first second of each phase goes to the back-off (≤ 2 s).
+        assert!(p["vpe"].as_u64().unwrap_or(0) >= 60, "{phase}: {out}");
+        assert!(p["heartbeat"].as_u64().unwrap_or(0) >= 2, "{phase}: {out}");
+        assert_eq!(p["bad"], 0, "{phase}: {out}");
+    }
+    let s = svc.get_json("/api/v1/status");
+    let l = &s["outputs"][0]["links"][0];
+    assert!(
+        l["errors"].as_u64().unwrap_or(0) >= 2,
+        "the outage is counted: {l}"
+    );
+    assert!(l["sent"].as_u64().unwrap_or(0) >= 120, "{l}");
+}

@@ -286,23 +286,10 @@ async fn serial(path: String, baud: u32, rx: mpsc::Receiver<Arc<[u8]>>, stats: A
     let open = || {
         let path = path.clone();
         async move {
-            // `stty` sets the line raw at the baud rate (no termios crate needed).
-            let configured = tokio::process::Command::new("stty")
-                .args(["-F", &path, &baud.to_string(), "raw", "-echo"])
-                .output()
-                .await;
-            match configured {
-                Ok(o) if o.status.success() => tokio::fs::OpenOptions::new()
-                    .write(true)
-                    .open(&path)
-                    .await
-                    .map_err(|e| e.to_string()),
-                Ok(o) => Err(format!(
-                    "stty failed: {}",
-                    String::from_utf8_lossy(&o.stderr).trim()
-                )),
-                Err(e) => Err(format!("cannot run stty: {e}")),
-            }
+            // Raw 8N1 at the baud rate, on any OS tokio-serial supports. A device that is
+            // absent (unplugged) fails here and is tried again after the back-off.
+            tokio_serial::SerialStream::open(&tokio_serial::new(&path, baud))
+                .map_err(|e| format!("cannot open: {e}"))
         }
     };
     stream_link(format!("serial:{path}:{baud}"), open, rx, stats).await
