@@ -136,15 +136,23 @@ impl Default for HttpConfig {
 pub struct IngestConfig {
     /// Capacity of the queue from the Zenoh callbacks to the estimator task.
     pub channel_capacity: usize,
+    /// An input arriving faster than this many times its `rate_hz` (plus 20 Hz) has
+    /// the excess shed and counted; 0 disables the limit.
+    pub max_rate_factor: f64,
 }
 
 impl Default for IngestConfig {
     fn default() -> Self {
         Self {
             channel_capacity: DEFAULT_CHANNEL_CAPACITY,
+            max_rate_factor: DEFAULT_MAX_RATE_FACTOR,
         }
     }
 }
+
+/// Default `[ingest] max_rate_factor`: real sensors drift a few percent, bridges batch;
+/// four times the configured rate is a flood.
+pub const DEFAULT_MAX_RATE_FACTOR: f64 = 4.0;
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
@@ -525,6 +533,12 @@ impl Config {
         }
         if self.ingest.channel_capacity == 0 {
             return Err("ingest.channel_capacity must be at least 1".into());
+        }
+        let f = self.ingest.max_rate_factor;
+        if !(f.is_finite() && (f == 0.0 || f >= 1.0)) {
+            return Err(format!(
+                "ingest.max_rate_factor = {f} must be 0 (no limit) or at least 1"
+            ));
         }
         if self.http.bind.parse::<std::net::SocketAddr>().is_err() {
             return Err(format!(

@@ -252,3 +252,61 @@ fn a_serial_link_absent_at_start_unplugged_and_plugged_back_carries_vpe() {
     );
     assert!(l["sent"].as_u64().unwrap_or(0) >= 120, "{l}");
 }
+
+#[test]
+fn one_input_flooded_is_shed_and_the_others_lose_nothing() {
+    // A publisher floods gps/fix (10 Hz configured) as fast as Python can put (tens of
+    // kHz): its excess is shed at ingest (4 × 10 + 20 Hz pass), the queue the other
+    // sensors share never fills, no other sample is dropped, the pose stays valid and
+    // the autopilot keeps getting VPE at its rate.
+    let (svc, udp) = demo_with_mavlink_udp();
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
+    let listener = std::thread::spawn(move || {
+        run_py(
+            "mavlink_listen.py",
+            &["--port", &udp.to_string(), "--seconds", "8"],
+        )
+    });
+    let flood = json(&run_py(
+        "flood.py",
+        &[
+            "--connect",
+            &svc.zenoh_endpoint(),
+            "--key",
+            "gps/fix",
+            "--seconds",
+            "5",
+        ],
+    ));
+    let out = json(&listener.join().expect("listener"));
+    let s = svc.get_json("/api/v1/status");
+    println!("flood: {flood}; gps: {}", sensor(&s, "gps"));
+    let put = flood["put"].as_u64().unwrap_or(0);
+    assert!(
+        put > 5_000,
+        "the flood was too weak to mean anything: {flood}"
+    );
+    let gps = sensor(&s, "gps");
+    let (shed, received) = (
+        gps["shed"].as_u64().unwrap_or(0),
+        gps["received"].as_u64().unwrap_or(0),
+    );
+    // Zenoh itself drops part of a flood this size (put is not received); of what
+    // arrives, all but ≤ 60 a second is shed.
+    assert!(received > 5_000, "{gps}");
+    assert!(shed + 60 * 8 + 200 >= received, "shed {shed} of {received}");
+    for other in s["sensors"].as_array().expect("sensors") {
+        assert_eq!(other["dropped"], 0, "{}", other["id"]);
+    }
+    assert_eq!(s["estimator"]["valid"], true);
+    // VPE at ~30 Hz all through: no gap of half a second.
+    let rx: Vec<f64> = out["vpe"]
+        .as_array()
+        .expect("vpe")
+        .iter()
+        .map(|v| f(&v["rx"]))
+        .collect();
+    assert!(rx.len() > 180, "{} VPE in 8 s", rx.len());
+    let worst = rx.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
+    assert!(worst < 0.5, "VPE gap {worst:.2} s during the flood");
+}

@@ -163,6 +163,10 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
         "input_dropped",
         "Samples dropped per input because the estimator's queue was full",
     );
+    let shed = m.counters(
+        "input_shed",
+        "Samples shed per input for arriving far above its configured rate",
+    );
     let restarts = m.counters(
         "input_clock_restarts",
         "Times an input's clock restarted and was followed",
@@ -197,6 +201,7 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
         rejected.get_or_create(&l).inc_by(s.input.rejected);
         ignored.get_or_create(&l).inc_by(s.input.ignored);
         dropped.get_or_create(&l).inc_by(s.input.dropped);
+        shed.get_or_create(&l).inc_by(s.input.shed);
         restarts.get_or_create(&l).inc_by(s.input.clock_restarts);
         rate.get_or_create(&l).set(s.input.rate_hz);
         expected.get_or_create(&l).set(s.input.expected_rate_hz);

@@ -76,6 +76,9 @@ pub struct InputCounters {
     pub ignored: AtomicU64,
     /// Accepted samples dropped because the estimator queue was full.
     pub dropped: AtomicU64,
+    /// Samples shed because the input arrived far above its configured rate (a flood):
+    /// one misbehaving publisher must not fill the queue the other sensors share.
+    pub shed: AtomicU64,
     /// The sensor's clock restarted (a consistent new series of stamps was adopted).
     pub clock_restarts: AtomicU64,
 }
@@ -91,7 +94,30 @@ struct InputHistory {
     rate: RateMeter,
     last_log_us: Option<Micros>,
     suppressed_logs: u64,
+    /// Admission token bucket: (tokens, last refill).
+    admission: (f64, Option<Micros>),
 }
+
+impl InputHistory {
+    /// Admit one sample at `now` from a token bucket refilled at `rate` per second and
+    /// holding one second's worth (bursts of a second are fine, a flood is not).
+    fn admit(&mut self, now: Micros, rate: f64) -> bool {
+        let (tokens, last) = &mut self.admission;
+        let dt = last.map_or(1.0, |l| ((now - l) as f64 * 1e-6).clamp(0.0, 1.0));
+        *tokens = (*tokens + dt * rate).min(rate.max(1.0));
+        *last = Some(now);
+        if *tokens >= 1.0 {
+            *tokens -= 1.0;
+            true
+        } else {
+            false
+        }
+    }
+}
+
+/// An input may arrive this much above `max_rate_factor` × its rate_hz before its
+/// excess is shed, Hz (slack for slow inputs and jitter).
+const FLOOD_SLACK_HZ: f64 = 20.0;
 
 /// One configured input and its state.
 #[derive(Debug)]
@@ -119,6 +145,8 @@ pub struct InputStatus {
     pub rejected: u64,
     pub ignored: u64,
     pub dropped: u64,
+    /// Shed for arriving far above the configured rate.
+    pub shed: u64,
     /// Times the sensor's clock restarted (reboot, clock step) and was followed.
     pub clock_restarts: u64,
     pub last_clock_restart: Option<String>,
@@ -237,6 +265,7 @@ impl InputState {
             rejected: c.rejected.load(Relaxed),
             ignored: c.ignored.load(Relaxed),
             dropped: c.dropped.load(Relaxed),
+            shed: c.shed.load(Relaxed),
             clock_restarts: c.clock_restarts.load(Relaxed),
             last_clock_restart: h.last_clock_restart.clone(),
             last_error: h.last_error.clone(),
@@ -250,7 +279,11 @@ impl InputState {
 
     fn reject(&self, why: Rejection, now: Micros) {
         self.counters.rejected.fetch_add(1, Relaxed);
-        let text = why.to_string();
+        self.note_error(why.to_string(), "rejected payload", now);
+    }
+
+    /// The last error shown in the status, logged at most every ERROR_LOG_INTERVAL_MS.
+    fn note_error(&self, text: String, what: &str, now: Micros) {
         let mut h = self.history();
         h.last_error_us = Some(now);
         let due = h
@@ -262,7 +295,7 @@ impl InputState {
                 key = %self.config.key,
                 format = %self.config.format,
                 suppressed = h.suppressed_logs,
-                "rejected payload: {text}"
+                "{what}: {text}"
             );
             h.last_log_us = Some(now);
             h.suppressed_logs = 0;
@@ -279,6 +312,8 @@ pub struct Ingest {
     pub inputs: Vec<Arc<InputState>>,
     /// Our own MAVLink (system, component): skipped when it comes back.
     own_mav: (u8, u8),
+    /// `[ingest] max_rate_factor`: above it (plus FLOOD_SLACK_HZ) an input is shed.
+    max_rate_factor: f64,
     /// ROS 2 topics the bridges announce (filled by `ros_graph::discover`): the type of
     /// `type = "auto"` inputs, and a check of configured types.
     pub ros_topics: crate::ros_graph::TopicTable,
@@ -294,6 +329,7 @@ impl Ingest {
                 .map(|c| Arc::new(InputState::new(c)))
                 .collect(),
             own_mav: (config.mavlink.system_id, config.mavlink.component_id),
+            max_rate_factor: config.ingest.max_rate_factor,
             ros_topics: Default::default(),
         }
     }
@@ -390,6 +426,20 @@ impl Ingest {
             }
             {
                 let mut h = input.history();
+                let limit = self.max_rate_factor * input.config.rate_hz + FLOOD_SLACK_HZ;
+                if self.max_rate_factor > 0.0
+                    && input.config.rate_hz > 0.0
+                    && !h.admit(arrival_us, limit)
+                {
+                    drop(h);
+                    c.shed.fetch_add(1, Relaxed);
+                    let text = format!(
+                        "arriving above {limit:.0} Hz ({}× its rate_hz {} + {FLOOD_SLACK_HZ} Hz): the excess is shed",
+                        self.max_rate_factor, input.config.rate_hz
+                    );
+                    input.note_error(text, "flooding", arrival_us);
+                    continue;
+                }
                 if let Some(stamp) = d.stamp_us {
                     use stamps::StampVerdict as V;
                     let why = match h.stamps.check(stamp, arrival_us) {
@@ -514,6 +564,45 @@ mod tests {
 
     fn imu_json(stamp: i64) -> String {
         format!(r#"{{"kind":"imu","stamp_us":{stamp},"gyro":[0.1,0.2,0.3],"accel":[0,0,9.81]}}"#)
+    }
+
+    /// Feed `imu` at `hz` for `secs` seconds (stamps = arrivals); returns accepted.
+    fn feed(ing: &Ingest, input: &InputState, hz: f64, secs: f64, t0: i64) -> usize {
+        let n = (hz * secs) as i64;
+        (0..n)
+            .map(|i| {
+                let t = t0 + (i as f64 * 1e6 / hz) as i64;
+                ing.accept(input, "imu", imu_json(t).as_bytes(), t).len()
+            })
+            .sum()
+    }
+
+    #[test]
+    fn a_flooding_input_is_shed_to_its_limit_and_a_normal_one_is_not() {
+        let ing = ingest_with(JSON_IMU);
+        let input = ing.inputs[0].clone();
+        // At its rate (and at 3×, a burst): all of it.
+        assert_eq!(feed(&ing, &input, 100.0, 5.0, 1_000_000), 500);
+        assert_eq!(feed(&ing, &input, 300.0, 2.0, 7_000_000), 600);
+        assert_eq!(input.counters.shed.load(Relaxed), 0);
+        // At 10× for 10 s: the limit is 4 × 100 + 20 = 420 Hz, one second's burst on top.
+        let got = feed(&ing, &input, 1000.0, 10.0, 10_000_000);
+        assert!((4200..=4200 + 420 + 10).contains(&got), "{got}");
+        let shed = input.counters.shed.load(Relaxed);
+        assert_eq!(got as u64 + shed, 10_000);
+        let st = input.status(20_000_000);
+        assert_eq!(st.shed, shed);
+        assert!(
+            st.last_error.as_deref().is_some_and(|e| e.contains("shed")),
+            "{:?}",
+            st.last_error
+        );
+        // Back to its rate: all of it again.
+        assert_eq!(feed(&ing, &input, 100.0, 3.0, 22_000_000), 300);
+        // 0 turns the limit off.
+        let off = ingest_with(&format!("[ingest]\nmax_rate_factor = 0\n{JSON_IMU}"));
+        let i = off.inputs[0].clone();
+        assert_eq!(feed(&off, &i, 1000.0, 2.0, 1_000_000), 2000);
     }
 
     #[test]
