@@ -310,3 +310,38 @@ fn one_input_flooded_is_shed_and_the_others_lose_nothing() {
     let worst = rx.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
     assert!(worst < 0.5, "VPE gap {worst:.2} s during the flood");
 }
+
+#[test]
+fn a_tcp_peer_that_restarts_gets_vpe_again() {
+    // skyfuse connects out (`tcpout:`) to a server that is not there yet, then is, then
+    // closes and refuses for 2 s, then listens again on the same port.
+    let port = free_port();
+    let svc = Service::start(
+        &[
+            "demo",
+            "--no-browser",
+            "--mavlink",
+            &format!("tcpout:127.0.0.1:{port}"),
+        ],
+        &[],
+    );
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
+    let out = json(&run_py(
+        "tcp_restart.py",
+        &["--port", &port.to_string(), "--seconds", "4", "--gap", "2"],
+    ));
+    println!("tcp peer restart: {out}");
+    for phase in ["before", "after"] {
+        let p = &out[phase];
+        assert!(p["vpe"].as_u64().unwrap_or(0) >= 60, "{phase}: {out}");
+        assert_eq!(p["bad"].as_u64().unwrap_or(0), 0, "{phase}: {out}");
+    }
+    // Back within the back-off (250 ms doubling, the outage was 2 s).
+    assert!(f(&out["after"]["accepted_after_s"]) < 5.0, "{out}");
+    let s = svc.get_json("/api/v1/status");
+    let l = &s["outputs"][0]["links"][0];
+    assert!(
+        l["errors"].as_u64().unwrap_or(0) >= 1,
+        "the outage is counted: {l}"
+    );
+}
