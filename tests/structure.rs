@@ -188,3 +188,30 @@ fn the_graph_reader_sees_a_cycle() {
         ["estimator", "health", "sync"]
     );
 }
+
+#[test]
+fn the_container_build_stubs_every_bench_target() {
+    // docker/Dockerfile builds the dependencies against stub targets; a [[bench]] it
+    // does not stub makes the manifest unreadable there (found when fuzz was added).
+    let root = common::repo_root();
+    let manifest = std::fs::read_to_string(root.join("Cargo.toml")).unwrap_or_default();
+    let dockerfile = std::fs::read_to_string(root.join("docker/Dockerfile")).unwrap_or_default();
+    let stubs = dockerfile
+        .lines()
+        .find(|l| l.contains("for b in") && l.contains("benches/$b.rs"))
+        .unwrap_or_else(|| panic!("no bench stub loop in docker/Dockerfile"));
+    let mut benches = 0;
+    for block in manifest.split("[[bench]]").skip(1) {
+        let name = block
+            .lines()
+            .find_map(|l| l.trim().strip_prefix("name = "))
+            .map(|n| n.trim_matches('"'))
+            .unwrap_or_else(|| panic!("a [[bench]] without a name"));
+        benches += 1;
+        assert!(
+            stubs.split_whitespace().any(|w| w == name),
+            "docker/Dockerfile does not stub bench {name}: {stubs}"
+        );
+    }
+    assert!(benches >= 3, "{benches} benches found");
+}
