@@ -345,3 +345,24 @@ fn a_tcp_peer_that_restarts_gets_vpe_again() {
         "the outage is counted: {l}"
     );
 }
+
+#[test]
+fn a_udp_peer_that_is_not_listening_yet_gets_vpe_once_it_is() {
+    // Nobody on the port: the kernel answers ICMP port unreachable, a connected UDP
+    // socket reports it on a later send. skyfuse counts it and keeps sending; the
+    // autopilot (here pymavlink) that starts listening later gets VPE at once.
+    let (svc, udp) = demo_with_mavlink_udp();
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
+    std::thread::sleep(Duration::from_secs(2));
+    let s = svc.get_json("/api/v1/status");
+    let before = s["outputs"][0].clone();
+    let out = json(&run_py(
+        "mavlink_listen.py",
+        &["--port", &udp.to_string(), "--seconds", "4"],
+    ));
+    let n = out["vpe"].as_array().map_or(0, Vec::len);
+    println!("udp peer late: {n} VPE in 4 s; before it listened: {before}");
+    assert!(n >= 100, "{n} VPE in 4 s");
+    assert_eq!(out["bad_data"], 0);
+    assert_eq!(before["sending"], true, "{before}");
+}
