@@ -160,14 +160,6 @@ impl TickBuilder {
     }
 }
 
-/// An estimator event as the hub and logs carry it.
-pub fn event_frame(e: &EstimatorEvent, started_us: Micros) -> ServerFrame {
-    let t = (e.time_us - started_us) as f64 / 1e6;
-    ServerFrame::Event {
-        event: e.to_json(t, true),
-    }
-}
-
 /// Everything the estimator task is built from.
 pub struct PipelineConfig {
     pub estimator: EstimatorConfig,

@@ -193,8 +193,7 @@ impl Ekf {
         gate: f64,
         force: bool,
     ) -> UpdateOutcome {
-        let s = h * &self.p * h.transpose() + r;
-        let s = (&s + s.transpose()) * 0.5;
+        let s = self.innovation_cov(h, r);
         let innovation: Vec<f64> = y.iter().copied().collect();
         let innovation_var: Vec<f64> = s.diagonal().iter().copied().collect();
         let Some(chol) = s.clone().cholesky() else {
@@ -331,6 +330,12 @@ impl Ekf {
         self.symmetrise();
     }
 
+    /// Innovation covariance S = H P Hᵀ + R, made exactly symmetric.
+    fn innovation_cov(&self, h: &DMatrix<f64>, r: &DMatrix<f64>) -> DMatrix<f64> {
+        let s = h * &self.p * h.transpose() + r;
+        (&s + s.transpose()) * 0.5
+    }
+
     /// The normalised innovation test ratio a measurement would get (NIS / gate), without
     /// updating: infinite when S is singular.
     pub fn test_ratio(
@@ -340,9 +345,7 @@ impl Ekf {
         r: &DMatrix<f64>,
         gate: f64,
     ) -> f64 {
-        let s = h * &self.p * h.transpose() + r;
-        let s = (&s + s.transpose()) * 0.5;
-        match s.cholesky() {
+        match self.innovation_cov(h, r).cholesky() {
             Some(chol) if gate > 0.0 => y.dot(&chol.solve(y)) / gate,
             Some(_) => 0.0,
             None => f64::INFINITY,
@@ -362,6 +365,12 @@ impl Ekf {
         self.symmetrise();
     }
 
+    /// Height of the vehicle above the terrain state, m: what a downward range finder
+    /// measures (times the tilt cosine), with Jacobian [`h_height`].
+    pub fn height_above_terrain(&self) -> f64 {
+        self.x[IDX_P + 2] - self.x[IDX_TERRAIN]
+    }
+
     /// Shift the position (origin reset); the covariance is unchanged.
     pub fn shift_position(&mut self, d: Vector3<f64>) {
         let p = self.pos() + d;
@@ -375,6 +384,14 @@ pub fn h_pos(n: usize) -> DMatrix<f64> {
     for i in 0..3 {
         h[(i, IDX_P + i)] = 1.0;
     }
+    h
+}
+
+/// Jacobian row of the height above the terrain, z − terrain (1×n).
+pub fn h_height(n: usize) -> DMatrix<f64> {
+    let mut h = DMatrix::zeros(1, n);
+    h[(0, IDX_P + 2)] = 1.0;
+    h[(0, IDX_TERRAIN)] = -1.0;
     h
 }
 

@@ -24,7 +24,7 @@
 //! without an IMU, only the autopilot's landed state counts. When aiding returns the
 //! track continues from the held position: no jump, no reset.
 
-use super::ekf::{dvec, GRAVITY, IDX_P, IDX_TERRAIN, IDX_V};
+use super::ekf::{dvec, h_height, GRAVITY, IDX_P, IDX_V};
 use super::imu::Lpf3;
 use super::{Core, Ctx, Event};
 use crate::event::ConstraintChange;
@@ -407,12 +407,9 @@ fn fuse_force(core: &mut Core, idx: &[usize], z: Vector3<f64>, var: f64) -> bool
 
 fn fuse_height_force(core: &mut Core, h_meas: f64, var: f64) {
     let Some(ekf) = core.ekf.as_mut() else { return };
-    let mut h = DMatrix::zeros(1, ekf.n());
-    h[(0, IDX_P + 2)] = 1.0;
-    h[(0, IDX_TERRAIN)] = -1.0;
-    let y = h_meas - (ekf.x[IDX_P + 2] - ekf.x[IDX_TERRAIN]);
+    let y = h_meas - ekf.height_above_terrain();
     let r = DMatrix::from_element(1, 1, var);
-    ekf.update(&dvec(&[y]), &h, &r, 0.0, true);
+    ekf.update(&dvec(&[y]), &h_height(ekf.n()), &r, 0.0, true);
 }
 
 #[cfg(test)]

@@ -2,8 +2,8 @@
 //!
 //! Checks: finite, strictly inside (min, max) (config overrides the sample's limits; a
 //! reading at a limit is a clamp, not a distance), not flagged invalid by the sensor
-//! (a reading at or below the minimum still says "on the ground"), pointing down, tilt below
-//! `range_max_tilt_rad`. Control: kept as the flow's height; fused when the filter is
+//! (a reading at or below the minimum still says "on the ground"), pointing down, tilt
+//! below `range_max_tilt_rad`. Control: kept as the flow's height; fused when the filter is
 //! initialised. Terrain reset (EKF2's `resetTerrainToRng`), when the reading fails the
 //! innovation gate and either follows readings at or below the minimum (the vehicle
 //! left the surface it stood on; the ground constraint's height no longer applies),
@@ -11,12 +11,12 @@
 //! climbs or sinks that fast: the edge of a table or a roof passed below), or no
 //! reading of this source has passed for [`HGT_FUSION_TIMEOUT_US`] (EKF2's
 //! `hgt_fusion_timeout_max`: the ground under it has changed for good). The terrain
-//! moves, the vehicle does not; a lone spike resets it twice and leaves the pose alone. Fuse: h = d · cos(tilt),
-//! 1-D, against z − terrain.
+//! moves, the vehicle does not; a lone spike resets it twice and leaves the pose alone.
+//! Fuse: h = d · cos(tilt), 1-D, against z − terrain.
 
 use super::attitude::cos_tilt;
 use super::config::{DEFAULT_RANGE_MAX_M, DEFAULT_RANGE_MIN_M};
-use super::ekf::{dvec, IDX_P, IDX_TERRAIN};
+use super::ekf::{dvec, h_height, IDX_P};
 use super::{Core, Ctx, Event};
 use crate::sample::Range;
 use nalgebra::DMatrix;
@@ -113,13 +113,10 @@ fn reset_terrain_if_rejected(
 ) {
     let (h_meas, r) = height_of(core, slant, var);
     let Some(ekf) = core.ekf.as_mut() else { return };
-    let mut hm = DMatrix::zeros(1, ekf.n());
-    hm[(0, IDX_P + 2)] = 1.0;
-    hm[(0, IDX_TERRAIN)] = -1.0;
-    let before = ekf.x[IDX_P + 2] - ekf.x[IDX_TERRAIN];
+    let before = ekf.height_above_terrain();
     let ratio = ekf.test_ratio(
         &dvec(&[h_meas - before]),
-        &hm,
+        &h_height(ekf.n()),
         &DMatrix::from_element(1, 1, r),
         ctx.gate(1),
     );

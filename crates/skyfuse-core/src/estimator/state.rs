@@ -414,10 +414,8 @@ impl Core {
             return;
         }
         let Some(ekf) = self.ekf.as_ref() else { return };
-        let mut h = DMatrix::zeros(1, ekf.n());
-        h[(0, IDX_P + 2)] = 1.0;
-        h[(0, ekf::IDX_TERRAIN)] = -1.0;
-        let y = DMatrix::from_element(1, 1, z - (ekf.x[IDX_P + 2] - ekf.x[ekf::IDX_TERRAIN]));
+        let y = DMatrix::from_element(1, 1, z - ekf.height_above_terrain());
+        let h = ekf::h_height(ekf.n());
         let r = DMatrix::from_element(1, 1, var);
         self.update(t, source, "range", y, h, r, ctx);
     }

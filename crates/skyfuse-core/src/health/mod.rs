@@ -85,6 +85,19 @@ pub struct HealthConfig {
 pub const DEFAULT_CONFIRM_MS: f64 = 300.0;
 pub const DEFAULT_RECOVER_MS: f64 = 3000.0;
 pub const DEFAULT_HOLD_MS: f64 = 500.0;
+/// The reasons a set of conditions gives.
+fn reasons_of<'a>(
+    conditions: impl IntoIterator<Item = (&'static str, &'a Condition)>,
+) -> Vec<Reason> {
+    conditions
+        .into_iter()
+        .map(|(code, c)| Reason {
+            code,
+            text: c.text.clone(),
+        })
+        .collect()
+}
+
 /// Conditions a single sample shows in full (a jump, a reset, a divergence): they count
 /// at once, held for `hold_ms`, instead of waiting to be seen over `confirm_ms`.
 const STEP_CODES: [&str; 4] = ["gnss_jump", "vo_jump", "vo_reset", "diverged"];
@@ -603,24 +616,11 @@ impl SensorHealth {
             .map(|(_, c)| c.state)
             .max_by_key(|s| s.rank())
             .unwrap_or(HealthState::Ok);
-        let reasons = counting
-            .iter()
-            .map(|(code, c)| Reason {
-                code,
-                text: c.text.clone(),
-            })
-            .collect();
-        (worst, reasons)
+        (worst, reasons_of(counting))
     }
 
     fn condition_reasons(&self) -> Vec<Reason> {
-        self.conditions
-            .iter()
-            .map(|(code, c)| Reason {
-                code,
-                text: c.text.clone(),
-            })
-            .collect()
+        reasons_of(self.conditions.iter().map(|(code, c)| (*code, c)))
     }
 
     fn evaluate(&mut self, cfg: &HealthConfig, t: i64) -> Option<Transition> {

@@ -277,7 +277,7 @@ fn attach_angular_velocity(samples: &mut Vec<Sample>) {
 }
 
 /// The row of `rows` (sorted by time) nearest to `t`.
-fn nearest(rows: &[(i64, Vector3<f64>)], t: i64) -> Option<(i64, Vector3<f64>)> {
+fn nearest<T: Copy>(rows: &[(i64, T)], t: i64) -> Option<(i64, T)> {
     let i = rows.partition_point(|r| r.0 < t);
     [i.checked_sub(1), Some(i)]
         .into_iter()
@@ -304,16 +304,10 @@ fn attitude_from_ekf2_heading(samples: &mut Vec<Sample>) -> usize {
         })
         .collect();
     let tilt_at = |t: i64| -> UnitQuaternion<f64> {
-        let i = tilts.partition_point(|r| r.0 < t);
-        let near = [i.checked_sub(1), Some(i)]
-            .into_iter()
-            .flatten()
-            .filter_map(|j| tilts.get(j))
-            .filter(|r| (r.0 - t).abs() <= TILT_NEAREST_US)
-            .min_by_key(|r| (r.0 - t).abs());
+        let near = nearest(&tilts, t).filter(|(rt, _)| (rt - t).abs() <= TILT_NEAREST_US);
         // The quaternion without its heading: body → a level frame of the same yaw.
         near.map_or_else(UnitQuaternion::identity, |(_, q)| {
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -yaw_of(q)) * q
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -yaw_of(&q)) * q
         })
     };
     let mut extra = Vec::new();
