@@ -35,6 +35,8 @@ pub enum RunError {
     Zenoh(#[from] zenoh_in::ZenohError),
     #[error("HTTP server: {0}")]
     Http(std::io::Error),
+    #[error(transparent)]
+    Record(#[from] crate::record::RecordError),
 }
 
 /// Optional parts of a run.
@@ -74,7 +76,17 @@ pub async fn run_with(
     let session = listeners.zenoh;
     let zid = session.zid().to_string();
     let locators = config.zenoh.listen.clone();
-    let subscribers = zenoh_in::subscribe_inputs(&session, ingest.clone(), tx.clone()).await?;
+    let (tap, recorder) = crate::record::spawn(
+        &config.record,
+        &config.foxglove,
+        &config.service.vehicle,
+        &config.output.ros2_frame_id,
+        ingest.clone(),
+    )
+    .await?;
+    let recorder = recorder.map(Arc::new);
+    let subscribers =
+        zenoh_in::subscribe_inputs(&session, ingest.clone(), tx.clone(), tap.clone()).await?;
     let started_us = now_us();
     let hub = Arc::new(Hub::default());
     let shared = Arc::new(PipelineShared::new(hub.clone(), started_us));
@@ -117,6 +129,7 @@ pub async fn run_with(
         zenoh_closed: AtomicBool::new(false),
         zenoh_routers: AtomicU64::new(0),
         zenoh_peers: AtomicU64::new(0),
+        recorder: recorder.clone(),
     });
     drop(tx);
     let pipeline_config = pipeline::PipelineConfig {
@@ -149,6 +162,7 @@ pub async fn run_with(
         mavlink_stats,
         endpoints,
         (config.mavlink.zenoh_raw || config.mavlink.zenoh_json).then(|| session.clone()),
+        tap.clone(),
     ));
     let health_state = Arc::downgrade(&state);
     let zenoh_output = tokio::spawn(zenoh_out::run(
@@ -156,8 +170,8 @@ pub async fn run_with(
         config.output.clone(),
         config.output.prefix_for(&config.service.vehicle),
         ZenohOutInputs {
-            pose: pose_rx,
-            debug: debug_rx,
+            pose: pose_rx.clone(),
+            debug: debug_rx.clone(),
             events: shared.events_tx.subscribe(),
             health: Arc::new(move || {
                 health_state
@@ -168,6 +182,15 @@ pub async fn run_with(
         },
         zenoh_out_stats,
     ));
+    let record_feed = tap.is_on().then(|| {
+        tokio::spawn(record_feed(
+            tap.clone(),
+            state.clone(),
+            pose_rx.clone(),
+            debug_rx.clone(),
+            shared.events_tx.subscribe(),
+        ))
+    });
     let status_frames = tokio::spawn(status_frames(state.clone()));
     let zenoh_links = tokio::spawn(watch_zenoh_links(state.clone(), session.clone()));
 
@@ -217,6 +240,13 @@ pub async fn run_with(
     // The pose channel closed with the estimator: the outputs end on their own.
     let _ = mavlink.await;
     zenoh_output.abort();
+    if let Some(f) = record_feed {
+        f.abort();
+    }
+    // Everything queued is logged and the MCAP file finalised (summary, footer).
+    if let Some(r) = recorder {
+        let _ = tokio::task::spawn_blocking(move || r.finish()).await;
+    }
     state.zenoh_closed.store(true, Relaxed);
     if let Err(e) = session.close().await {
         tracing::warn!("closing zenoh session: {e}");
@@ -270,6 +300,57 @@ async fn watch_zenoh_links(state: Arc<AppState>, session: zenoh::Session) {
             message
         };
         state.publish_service_event(Event::ZenohLink, None, &message);
+    }
+}
+
+/// How often health goes to the recorder.
+const RECORD_HEALTH_INTERVAL: Duration = Duration::from_secs(1);
+/// The debug series go to the recorder at most this often.
+const RECORD_DEBUG_INTERVAL: Duration = Duration::from_millis(50);
+
+/// Feeds the recorder what is not tapped where it is made: the fused poses (at the pose
+/// output's rate, `[output] pose_rate_hz`, as Zenoh gets them), the debug series
+/// (≤ 20 Hz), events and health (1 Hz).
+async fn record_feed(
+    tap: crate::tap::Tap,
+    state: Arc<AppState>,
+    mut pose: crate::pipeline::PoseReceiver,
+    mut debug: crate::pipeline::DebugReceiver,
+    mut events: tokio::sync::broadcast::Receiver<Arc<serde_json::Value>>,
+) {
+    let mut health = tokio::time::interval(RECORD_HEALTH_INTERVAL);
+    health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut debug_sent = tokio::time::Instant::now();
+    let pose_period_us = (1e6 / state.config.output.pose_rate_hz.max(1.0)) as i64;
+    let mut pose_sent_us: Option<i64> = None;
+    loop {
+        tokio::select! {
+            changed = pose.changed() => {
+                if changed.is_err() { break; }
+                let p = pose.borrow_and_update().clone();
+                if let Some(p) = p {
+                    // On the pose's own clock, less a little jitter.
+                    if pose_sent_us.is_none_or(|s| p.time_us - s >= pose_period_us * 9 / 10) {
+                        pose_sent_us = Some(p.time_us);
+                        tap.pose(p);
+                    }
+                }
+            }
+            changed = debug.changed() => {
+                if changed.is_err() { break; }
+                if debug_sent.elapsed() >= RECORD_DEBUG_INTERVAL {
+                    debug_sent = tokio::time::Instant::now();
+                    let series = debug.borrow_and_update().clone();
+                    tap.debug(now_us(), series);
+                }
+            }
+            ev = events.recv() => match ev {
+                Ok(e) => tap.event(now_us(), (*e).clone()),
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
+            },
+            _ = health.tick() => tap.health(now_us(), state.health_json()),
+        }
     }
 }
 

@@ -68,7 +68,55 @@ pub struct Config {
     pub output: OutputConfig,
     #[serde(default)]
     pub health: crate::health::HealthConfig,
+    #[serde(default)]
+    pub record: RecordConfig,
+    #[serde(default)]
+    pub foxglove: FoxgloveConfig,
 }
+
+/// `[record]`: the MCAP flight recorder.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RecordConfig {
+    /// Directory for the recordings; none (or empty) records nothing.
+    pub dir: Option<String>,
+    /// A new file when the current one reaches this size, MiB…
+    pub max_file_mb: f64,
+    /// …or this age, s.
+    pub max_file_s: f64,
+    /// Chunk size, KiB: what a killed process can lose at most (the last chunk).
+    pub chunk_kb: f64,
+    /// Items waiting for the recorder thread; beyond it they are dropped and counted.
+    pub queue_capacity: usize,
+}
+
+pub const DEFAULT_RECORD_MAX_FILE_MB: f64 = 1024.0;
+pub const DEFAULT_RECORD_MAX_FILE_S: f64 = 1800.0;
+pub const DEFAULT_RECORD_CHUNK_KB: f64 = 256.0;
+pub const DEFAULT_RECORD_QUEUE: usize = 16384;
+
+impl Default for RecordConfig {
+    fn default() -> Self {
+        Self {
+            dir: None,
+            max_file_mb: DEFAULT_RECORD_MAX_FILE_MB,
+            max_file_s: DEFAULT_RECORD_MAX_FILE_S,
+            chunk_kb: DEFAULT_RECORD_CHUNK_KB,
+            queue_capacity: DEFAULT_RECORD_QUEUE,
+        }
+    }
+}
+
+/// `[foxglove]`: the Foxglove WebSocket live view.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct FoxgloveConfig {
+    /// HOST:PORT of the Foxglove WebSocket server; none (or empty) runs none.
+    pub bind: Option<String>,
+}
+
+/// Where `skyfuse demo` serves Foxglove (Foxglove's own default port, on loopback).
+pub const DEMO_FOXGLOVE_BIND: &str = "127.0.0.1:8765";
 
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
@@ -438,6 +486,26 @@ impl Config {
 
     /// Cross-field checks serde cannot express.
     pub fn validate(&self) -> Result<(), String> {
+        let r = &self.record;
+        for (name, v) in [
+            ("max_file_mb", r.max_file_mb),
+            ("max_file_s", r.max_file_s),
+            ("chunk_kb", r.chunk_kb),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!(
+                    "[record] {name} must be a positive number, not {v}"
+                ));
+            }
+        }
+        if let Some(b) = self.foxglove.bind.as_deref().filter(|b| !b.is_empty()) {
+            if b.rsplit_once(':')
+                .and_then(|(_, p)| p.parse::<u16>().ok())
+                .is_none()
+            {
+                return Err(format!("[foxglove] bind {b:?} is not HOST:PORT"));
+            }
+        }
         let mut ids = HashSet::new();
         for (i, input) in self.inputs.iter().enumerate() {
             let name = if input.id.is_empty() {

@@ -17,6 +17,9 @@
 //! - [`pipeline`]: the estimator task: samples in, pose/events/live series out.
 //! - [`output`]: the fused pose out: MAVLink (VISION_POSITION_ESTIMATE) and Zenoh.
 //! - [`ros_graph`]: ROS 2 graph presence via the bridge's liveliness tokens.
+//! - [`tap`]: copies for the recorder from the data path, never waiting; [`record`]: the
+//!   MCAP flight recorder and the Foxglove live view (one thread behind the taps'
+//!   bounded queue), and MCAP replay through ingest.
 //! - [`protocol`]: the frames of `/ws` as types (web/PROTOCOL.md is checked against them).
 //! - [`hub`]: the websocket fan-out: bounded per-client queues that drop oldest.
 //! - [`http`]: the JSON API, the status views ([`http::AppState`]), the page.
@@ -37,5 +40,7 @@ pub mod ingest;
 pub mod output;
 pub mod pipeline;
 pub mod protocol;
+pub mod record;
 pub mod ros_graph;
 pub mod sim;
+pub mod tap;

@@ -72,6 +72,7 @@ fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
         fuse: Some(["flow", "range", "attitude"].map(String::from).to_vec()),
         reference: "vio".into(),
         window: None,
+        t0_us: None,
     };
     let (a, b) = (tmp("px4-a"), tmp("px4-b"));
     let mut summaries = vec![];
@@ -295,6 +296,7 @@ fn an_arducopter_telemetry_log_replays_against_the_simulators_truth() {
         ),
         reference: "sim_truth".into(),
         window: None,
+        t0_us: None,
     };
     let out = tmp("tlog");
     let s = run_replay(

@@ -33,6 +33,8 @@ pub enum Command {
         config: Option<PathBuf>,
         #[command(flatten)]
         net: NetArgs,
+        #[command(flatten)]
+        record: RecordArgs,
         /// MAVLink endpoint for VISION_POSITION_ESTIMATE (repeatable): udpout:HOST:PORT,
         /// udpin:HOST:PORT, tcpout:HOST:PORT, serial:PATH:BAUD. Adds to the config's.
         #[arg(long = "mavlink", value_name = "ADDR")]
@@ -42,6 +44,8 @@ pub enum Command {
     Demo {
         #[command(flatten)]
         net: NetArgs,
+        #[command(flatten)]
+        record: RecordArgs,
         /// MAVLink endpoint for VISION_POSITION_ESTIMATE (repeatable), as for `run`.
         #[arg(long = "mavlink", value_name = "ADDR")]
         mavlink: Vec<String>,
@@ -96,10 +100,12 @@ pub enum Command {
         list: bool,
     },
     /// Replay a recorded flight (a PX4 ULog, a directory of its CSV export by pyulog's
-    /// ulog2csv, or a MAVLink telemetry log) through the estimator and write TUM files,
-    /// events and a summary scored on the whole log.
+    /// ulog2csv, a MAVLink telemetry log, a skyfuse recording or a rosbag2 bag in MCAP)
+    /// through the estimator and write TUM files, events and a summary scored on the
+    /// whole log.
     Replay {
-        /// A `.ulg` file, a `.tlog` file, or a directory of `<topic>_<instance>.csv[.gz]`.
+        /// A `.ulg`, `.tlog` or `.mcap` file, or a directory of `<topic>_<instance>.csv[.gz]`
+        /// (or a rosbag2 bag directory holding one `.mcap`).
         path: PathBuf,
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
@@ -120,6 +126,29 @@ pub enum Command {
         #[arg(short, long)]
         config: Option<PathBuf>,
     },
+}
+
+/// The flight recorder and the Foxglove live view.
+#[derive(Debug, Args, Default)]
+pub struct RecordArgs {
+    /// Record the flight as MCAP files in this directory (`[record] dir`).
+    #[arg(long, value_name = "DIR")]
+    pub record: Option<PathBuf>,
+    /// Serve the Foxglove WebSocket live view here, e.g. 0.0.0.0:8765 (`[foxglove] bind`).
+    #[arg(long, value_name = "ADDR")]
+    pub foxglove: Option<String>,
+}
+
+impl RecordArgs {
+    fn apply(&self, c: &mut Config) -> Result<(), String> {
+        if let Some(d) = &self.record {
+            c.record.dir = Some(d.display().to_string());
+        }
+        if let Some(b) = &self.foxglove {
+            c.foxglove.bind = Some(b.clone());
+        }
+        c.validate().map_err(|e| format!("command line: {e}"))
+    }
 }
 
 /// Network overrides shared by the commands.
@@ -316,18 +345,21 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
         Command::Run {
             config,
             net,
+            record,
             mavlink,
         } => {
             let mut c = load(config.as_deref(), &net)?;
+            record.apply(&mut c)?;
             add_mavlink(&mut c, &mavlink)?;
             serve(c, app::shutdown_signal()).await
         }
         Command::Demo {
             net,
+            record,
             mavlink,
             seed,
             no_browser,
-        } => demo(net, mavlink, seed, no_browser).await,
+        } => demo(net, record, mavlink, seed, no_browser).await,
         Command::Sim { list: true, .. } => {
             for (name, description) in scenario::NAMES {
                 println!("  {name:<16} {description}");
@@ -446,6 +478,7 @@ async fn open_zenoh(
 /// vehicle's bridges would.
 async fn demo(
     net: NetArgs,
+    record: RecordArgs,
     mavlink: Vec<String>,
     seed: u64,
     no_browser: bool,
@@ -461,7 +494,24 @@ async fn demo(
     c.zenoh.multicast_scouting = false;
     c.http.bind = "127.0.0.1:8080".into();
     c.service.vehicle = "demo".into();
+    // Foxglove on its usual port, unless that is taken (another demo): then any port,
+    // logged, rather than no demo.
+    if c.foxglove.bind.is_none() {
+        let free = std::net::TcpListener::bind(crate::config::DEMO_FOXGLOVE_BIND).is_ok();
+        if !free {
+            tracing::warn!(
+                "{} is in use: Foxglove gets another port (see the log below)",
+                crate::config::DEMO_FOXGLOVE_BIND
+            );
+        }
+        c.foxglove.bind = Some(if free {
+            crate::config::DEMO_FOXGLOVE_BIND.into()
+        } else {
+            "127.0.0.1:0".into()
+        });
+    }
     net.apply(&mut c)?;
+    record.apply(&mut c)?;
     add_mavlink(&mut c, &mavlink)?;
 
     let http = tokio::net::TcpListener::bind(&c.http.bind)

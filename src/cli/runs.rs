@@ -200,7 +200,42 @@ pub(super) fn replay(
     let mut on_progress = |done: u64, total: u64| bar.update(done as f64 / total.max(1) as f64);
     let name = path.to_string_lossy().to_ascii_lowercase();
     let is_tlog = name.ends_with(".tlog") || name.ends_with(".tlog.gz");
-    let samples = if is_tlog {
+    let mut t0_us = None;
+    let mut live_poses = Vec::new();
+    let mut c = c.clone();
+    let samples = if let Some(file) = mcap_file(path)? {
+        let log =
+            crate::replay::mcap::read_mcap(&file, &mut on_progress).map_err(|e| e.to_string())?;
+        if let Some(t) = &log.truncated {
+            tracing::warn!(file = %file.display(), "the file is cut short (not finished?): {t}");
+        }
+        let replay = crate::record::replay::samples(&c, &log);
+        for ch in &replay.channels {
+            match &ch.skipped {
+                Some(why) => {
+                    tracing::info!(topic = %ch.topic, messages = ch.messages, "not replayed: {why}")
+                }
+                None => {
+                    tracing::info!(topic = %ch.topic, messages = ch.messages, inputs = ?ch.inputs, "replayed")
+                }
+            }
+        }
+        for st in replay.ingest.statuses(0) {
+            if st.received > 0 && st.rejected > 0 {
+                tracing::warn!(
+                    input = %st.id,
+                    received = st.received,
+                    rejected = st.rejected,
+                    "rejected at ingest, as live; last: {}",
+                    st.last_error.as_deref().unwrap_or("-")
+                );
+            }
+        }
+        t0_us = replay.t0_us;
+        live_poses = replay.live_poses;
+        c = replay.config;
+        replay.samples
+    } else if is_tlog {
         let log =
             crate::replay::tlog::read_tlog(path, &mut on_progress).map_err(|e| e.to_string())?;
         for (m, n) in &log.messages {
@@ -241,6 +276,7 @@ pub(super) fn replay(
         fuse: sources.map(|s| s.to_vec()),
         reference: reference.to_string(),
         window,
+        t0_us,
     };
     let summary = offline::run_replay(
         &path.display().to_string(),
@@ -276,6 +312,15 @@ pub(super) fn replay(
             _ => String::new(),
         }
     );
+    if !live_poses.is_empty() {
+        let t0 = t0_us.unwrap_or(0);
+        let (n, rms, max) = compare_with_live(&out.join("fused.tum"), &live_poses, t0)?;
+        write_live_tum(&out.join("live.tum"), &live_poses, t0)?;
+        println!(
+            "against the poses sent live (live.tum, {} valid): {n} matched, position difference RMS {rms:.4} m, max {max:.4} m",
+            live_poses.iter().filter(|p| p.2).count()
+        );
+    }
     println!(
         "APE against {} (fused: valid poses only), m:   RMSE / max SE(3)-aligned   RMSE / max origin-aligned",
         summary.reference
@@ -294,4 +339,107 @@ pub(super) fn replay(
         );
     }
     Ok(())
+}
+
+/// The MCAP file to replay: `path` itself, or the one `.mcap` in a rosbag2 directory.
+fn mcap_file(path: &std::path::Path) -> Result<Option<std::path::PathBuf>, String> {
+    let is_mcap = |p: &std::path::Path| {
+        p.extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
+    };
+    if path.is_file() {
+        return Ok(is_mcap(path).then(|| path.to_path_buf()));
+    }
+    if path.join("metadata.yaml").is_file() {
+        let files: Vec<_> = std::fs::read_dir(path)
+            .map_err(|e| format!("{}: {e}", path.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| is_mcap(p))
+            .collect();
+        return match files.as_slice() {
+            [one] => Ok(Some(one.clone())),
+            [] => Err(format!(
+                "{}: a rosbag2 bag without an .mcap file (sqlite3 bags: convert with `ros2 bag convert` or rosbags-convert)",
+                path.display()
+            )),
+            _ => Err(format!(
+                "{}: a bag split into {} .mcap files: replay them one by one",
+                path.display(),
+                files.len()
+            )),
+        };
+    }
+    Ok(None)
+}
+
+/// Positions of the valid live poses against the replayed fused.tum, matched by time
+/// (within 10 ms): (matched, RMS, max) of the distance.
+fn compare_with_live(
+    fused_tum: &std::path::Path,
+    live: &[(i64, [f64; 3], bool)],
+    t0_us: i64,
+) -> Result<(usize, f64, f64), String> {
+    let text =
+        std::fs::read_to_string(fused_tum).map_err(|e| format!("{}: {e}", fused_tum.display()))?;
+    let fused: Vec<(f64, [f64; 3])> = text
+        .lines()
+        .filter_map(|l| {
+            let v: Vec<f64> = l
+                .split_whitespace()
+                .filter_map(|w| w.parse().ok())
+                .collect();
+            (v.len() >= 4).then(|| (v[0], [v[1], v[2], v[3]]))
+        })
+        .collect();
+    let (mut n, mut sum, mut max) = (0usize, 0.0f64, 0.0f64);
+    for (t_us, p, valid) in live {
+        if !valid {
+            continue;
+        }
+        let t = (t_us - t0_us) as f64 * 1e-6;
+        let i = fused.partition_point(|(ft, _)| *ft < t);
+        let best = [i.checked_sub(1), Some(i)]
+            .into_iter()
+            .flatten()
+            .filter_map(|j| fused.get(j))
+            .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()));
+        if let Some((ft, q)) = best {
+            if (ft - t).abs() <= 0.01 {
+                let d =
+                    ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
+                n += 1;
+                sum += d * d;
+                max = max.max(d);
+            }
+        }
+    }
+    Ok((
+        n,
+        if n > 0 {
+            (sum / n as f64).sqrt()
+        } else {
+            f64::NAN
+        },
+        max,
+    ))
+}
+
+fn write_live_tum(
+    file: &std::path::Path,
+    live: &[(i64, [f64; 3], bool)],
+    t0_us: i64,
+) -> Result<(), String> {
+    let mut text = String::new();
+    for (t_us, p, valid) in live {
+        if *valid {
+            text.push_str(&format!(
+                "{:.6} {:.9} {:.9} {:.9} 0 0 0 1\n",
+                (t_us - t0_us) as f64 * 1e-6,
+                p[0],
+                p[1],
+                p[2]
+            ));
+        }
+    }
+    std::fs::write(file, text).map_err(|e| format!("{}: {e}", file.display()))
 }

@@ -42,6 +42,8 @@ pub struct AppState {
     /// Zenoh routers and peers this session is connected to, refreshed every second.
     pub(crate) zenoh_routers: AtomicU64,
     pub(crate) zenoh_peers: AtomicU64,
+    /// The flight recorder and Foxglove live view, when configured.
+    pub recorder: Option<Arc<crate::record::writer::Recorder>>,
 }
 
 impl AppState {
@@ -90,6 +92,7 @@ impl AppState {
                 refused: self.controls_refused.load(Relaxed),
                 fault_injection: self.faults.is_some(),
             },
+            recorder: self.recorder.as_ref().map(|r| r.status()),
         }
     }
 
@@ -204,6 +207,8 @@ pub struct Status {
     pub outputs: Vec<OutputStatus>,
     pub websocket: HubStats,
     pub controls: Controls,
+    /// The MCAP recorder and the Foxglove server; null when neither runs.
+    pub recorder: Option<crate::record::RecorderStatus>,
 }
 
 #[derive(Debug, Clone, Serialize)]

@@ -90,6 +90,7 @@ pub async fn subscribe_inputs(
     session: &zenoh::Session,
     ingest: Arc<Ingest>,
     tx: mpsc::Sender<Sample>,
+    tap: crate::tap::Tap,
 ) -> Result<Vec<zenoh::pubsub::Subscriber<()>>, ZenohError> {
     let mut subs = Vec::new();
     for (idx, input) in ingest.inputs.iter().enumerate() {
@@ -99,6 +100,7 @@ pub async fn subscribe_inputs(
         for key in input.config.key_exprs() {
             let ingest = ingest.clone();
             let tx = tx.clone();
+            let tap = tap.clone();
             let sub = session
                 .declare_subscriber(key.as_str())
                 .callback(move |sample: zenoh::sample::Sample| {
@@ -107,7 +109,10 @@ pub async fn subscribe_inputs(
                     };
                     let arrival = now_us();
                     let payload = sample.payload().to_bytes();
-                    for s in ingest.accept(input, sample.key_expr().as_str(), &payload, arrival) {
+                    let key = sample.key_expr().as_str();
+                    tap.input(arrival, idx, key, &payload);
+                    for s in ingest.accept(input, key, &payload, arrival) {
+                        tap.decoded(idx, &s);
                         if tx.try_send(s).is_err() {
                             input.counters.dropped.fetch_add(1, Relaxed);
                         }

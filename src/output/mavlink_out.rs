@@ -385,6 +385,7 @@ pub async fn run(
     stats: Arc<MavlinkStats>,
     endpoints: Vec<Endpoint>,
     session: Option<zenoh::Session>,
+    tap: crate::tap::Tap,
 ) {
     let links: Vec<Link> = endpoints
         .into_iter()
@@ -523,6 +524,7 @@ pub async fn run(
             match crate::codec::mavlink::encode_raw_v2(header, &msg) {
                 Ok(frame) => {
                     let frame: Arc<[u8]> = frame.into();
+                    tap.mavlink_out(now, &frame);
                     for l in &links {
                         l.offer(&frame);
                     }

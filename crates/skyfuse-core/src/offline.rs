@@ -616,6 +616,10 @@ pub struct ReplayOptions {
     pub reference: String,
     /// Scored span, s from the log's start.
     pub window: Option<(f64, f64)>,
+    /// Time zero of the files, µs (default: the first sample's stamp). A recording of
+    /// live input starts at its first arrival instead: stamps there are the sensors' own
+    /// clocks (an autopilot's time since boot), arrivals the host's.
+    pub t0_us: Option<i64>,
 }
 
 pub fn run_replay(
@@ -648,7 +652,10 @@ pub fn run_replay(
     }
     let mode = cfg.mode;
     let mut fusion = Fusion::new(cfg, health, &replay_inputs(samples));
-    let t0 = samples.first().and_then(|s| s.stamp_us).unwrap_or(0);
+    let t0 = opts
+        .t0_us
+        .or_else(|| samples.first().and_then(|s| s.stamp_us))
+        .unwrap_or(0);
     let mut rec = Recorder::new(t0);
     let n = samples.len().max(1);
     for (i, s) in samples.iter().enumerate() {
