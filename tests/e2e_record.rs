@@ -277,3 +277,101 @@ fn a_rosbag2_bag_written_by_rosbags_replays_like_the_recording() {
         .fold(0.0f64, f64::max);
     assert!(worst < 0.05, "the IMU under another name: {worst} m");
 }
+
+/// `node tests/node/foxglove_client.mjs ...`, or `None` (saying why) without the npm
+/// packages `tests/run` installs there.
+fn foxglove_client(url: &str, seconds: u32, stall: bool) -> Option<std::process::Child> {
+    let dir = common::repo_root().join("tests/node");
+    if !dir.join("node_modules/@foxglove/ws-protocol").is_dir() {
+        eprintln!(
+            "SKIPPED: no {}/node_modules (`npm ci` there, as tests/run does)",
+            dir.display()
+        );
+        return None;
+    }
+    let mut cmd = Command::new("node");
+    cmd.arg(dir.join("foxglove_client.mjs"))
+        .arg(url)
+        .arg(seconds.to_string())
+        .stdout(std::process::Stdio::piped());
+    if stall {
+        cmd.arg("--stall");
+    }
+    Some(cmd.spawn().expect("node"))
+}
+
+#[test]
+fn a_foxglove_client_decodes_the_live_view_and_a_stalled_one_holds_nothing_up() {
+    let svc = Service::start(&["demo", "--no-browser", "--foxglove", "127.0.0.1:0"], &[]);
+    let status = svc.wait_status(Duration::from_secs(10), |s| {
+        s["recorder"]["foxglove"].is_string() && s["estimator"]["initialised"] == true
+    });
+    let url = format!(
+        "ws://{}",
+        status["recorder"]["foxglove"].as_str().unwrap_or("")
+    );
+    // A client that subscribes to everything and then never reads.
+    let Some(mut stalled) = foxglove_client(&url, 12, true) else {
+        return;
+    };
+    std::thread::sleep(Duration::from_secs(1));
+    let before = svc.get_json("/api/v1/status");
+    let Some(client) = foxglove_client(&url, 6, false) else {
+        return;
+    };
+    std::thread::sleep(Duration::from_secs(3));
+    let during = svc.get_json("/api/v1/status");
+    let out = client.wait_with_output().expect("client");
+    let after = svc.get_json("/api/v1/status");
+    let _ = stalled.kill();
+    let _ = stalled.wait();
+    let report: serde_json::Value =
+        serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("client report: {e}"));
+    assert_eq!(report["errors"], serde_json::json!([]), "{report}");
+    let advertised = |topic: &str, schema: &str| {
+        report["channels"].as_array().is_some_and(|c| {
+            c.iter()
+                .any(|c| c["topic"] == topic && c["schemaName"] == schema)
+        })
+    };
+    for (topic, schema) in [
+        ("/skyfuse/pose", "foxglove.PoseInFrame"),
+        ("/tf", "foxglove.FrameTransform"),
+        ("/skyfuse/location", "foxglove.LocationFix"),
+        ("camera/odom/sample", "nav_msgs/msg/Odometry"),
+        ("mavros/imu/data", "sensor_msgs/msg/Imu"),
+        ("data_fusion/OF_data", "skyfuse_msgs/msg/FlowTof"),
+        ("/skyfuse/input/imu", "skyfuse.imu"),
+    ] {
+        assert!(advertised(topic, schema), "{topic} as {schema}: {report}");
+    }
+    let n = |t: &str| report["counts"][t].as_u64().unwrap_or(0);
+    // 6 s: the pose at the 50 Hz output rate, the T265 at 200 Hz.
+    assert!((200..=400).contains(&n("/skyfuse/pose")), "{report}");
+    assert!(n("camera/odom/sample") > 800, "{report}");
+    let pose = &report["pose"];
+    assert_eq!(pose["frameId"], "map");
+    assert!(pose["pose"]["position"]["z"]
+        .as_f64()
+        .is_some_and(f64::is_finite));
+    assert!(report["odom"]["position"]["x"]
+        .as_f64()
+        .is_some_and(f64::is_finite));
+    assert_eq!(report["health"]["estimator"]["initialised"], true);
+
+    // The stalled client cost the data path nothing.
+    let clients = during["recorder"]["foxglove_clients"].as_u64();
+    assert_eq!(clients, Some(2), "{}", during["recorder"]);
+    let r = &after["recorder"];
+    assert_eq!(r["dropped"], 0, "the tap queue never filled: {r}");
+    for s in after["sensors"].as_array().into_iter().flatten() {
+        assert_eq!(s["dropped"], 0, "{}: {s}", s["id"]);
+    }
+    let sent = |s: &serde_json::Value| s["outputs"][0]["sent"].as_u64().unwrap_or(0);
+    assert!(
+        sent(&after) >= sent(&before) + 150,
+        "VPE kept going at 30 Hz: {} → {}",
+        sent(&before),
+        sent(&after)
+    );
+}
