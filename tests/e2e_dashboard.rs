@@ -44,6 +44,13 @@ fn the_page_draws_live_data_and_an_injected_fault_reaches_the_log_and_its_tile()
         ],
     ));
     assert_eq!(out["ok"], true, "{out}");
+    // The demo serves Foxglove: the page says where.
+    assert!(
+        out["recorder_row"]
+            .as_str()
+            .is_some_and(|r| r.contains("Foxglove ws://127.0.0.1:")),
+        "{out}"
+    );
     // Every configured sensor has a tile.
     let status = svc.get_json("/api/v1/status");
     let tiles = out["tiles"].as_array().expect("tiles");

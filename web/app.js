@@ -712,12 +712,32 @@
     }));
   }
 
+  // The flight recorder and the Foxglove live view, as one more row under the outputs.
+  function renderRecorder(r) {
+    let host = $('#recorder');
+    if (!r) { if (host) host.remove(); return; }
+    if (!host) { host = h('div', 'out'); host.id = 'recorder'; $('#outputs-card').append(host); }
+    const ok = !r.error;
+    const head = h('div', 'out-head');
+    head.append(h('span', `badge ${r.recording ? (ok ? 'st-ok' : 'st-failed') : 'st-disabled'}`,
+      r.recording ? (ok ? 'recording' : 'stopped') : 'not recording'),
+    h('span', 'oname', 'recorder'), h('span', 'okind muted', 'mcap'), h('span', 'oend muted mono', r.file || ''));
+    const stats = h('div', 'out-stats mono');
+    stats.textContent = [r.recording ? `${fmt((r.bytes || 0) / 1048576, 1)} MiB in ${r.files ?? 0} file${r.files === 1 ? '' : 's'}` : '',
+      `${r.messages ?? 0} messages`, r.dropped ? `dropped ${r.dropped}` : 'none dropped',
+      r.foxglove ? `Foxglove ws://${r.foxglove} (${r.foxglove_clients ?? 0} client${r.foxglove_clients === 1 ? '' : 's'})` : '']
+      .filter(Boolean).join(' · ');
+    host.replaceChildren(head, stats);
+    if (r.error) host.append(h('div', 'out-why', r.error));
+  }
+
   function onStatus(st) {
     state.status = st;
     const est = st.estimator || null;
     renderEstimator(st);
     renderTiles(Array.isArray(st.sensors) ? st.sensors : [], est);
     renderOutputs(st.outputs);
+    renderRecorder(st.recorder);
     if (st.websocket && isNum(st.websocket.dropped_total)) state.serverDroppedTotal = st.websocket.dropped_total;
     state.wsClients = st.websocket ? st.websocket.clients : undefined;
     renderWsStats();

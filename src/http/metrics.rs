@@ -288,6 +288,33 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
         "Frames dropped for slow websocket clients (oldest first)",
         ws.dropped_total,
     );
+    if let Some(r) = &status.recorder {
+        m.gauge(
+            "recorder_recording",
+            "1 while the flight recorder writes MCAP files",
+            flag(r.recording && r.error.is_none()),
+        );
+        m.counter(
+            "recorder_messages",
+            "Messages logged to the recorder's (and Foxglove's) channels",
+            r.messages,
+        );
+        m.counter(
+            "recorder_dropped",
+            "Items lost to the recorder's full queue (the data path never waits)",
+            r.dropped,
+        );
+        m.gauge(
+            "recorder_bytes",
+            "Bytes of the recording's files on disk",
+            r.bytes as f64,
+        );
+        m.gauge(
+            "foxglove_clients",
+            "Clients of the Foxglove WebSocket server",
+            r.foxglove_clients as f64,
+        );
+    }
     m.counter(
         "controls_refused",
         "Control requests refused for a missing or wrong token, or too many tries",

@@ -156,6 +156,19 @@ def main():
                               f"{page.evaluate('() => window.skyfuse.frames')})")
         mark("data_s", t)
 
+        # The recorder / Foxglove row, when the service runs either.
+        with urllib.request.urlopen(a.url + "api/v1/status", timeout=5) as r:
+            recorder = json.load(r).get("recorder")
+        if recorder:
+            want = f"ws://{recorder['foxglove']}" if recorder.get("foxglove") else "messages"
+            try:
+                page.wait_for_function(
+                    "(want) => ((document.querySelector('#recorder') || {}).textContent || '').includes(want)",
+                    arg=want, timeout=a.timeout * 1000, polling=250)
+            except PlaywrightTimeout:
+                raise CheckFailed(f"the recorder row never showed {want!r}")
+            report["recorder_row"] = page.evaluate("() => document.querySelector('#recorder').textContent")
+
         if a.inject_sensor:
             t = time.monotonic()
             report["injected"] = inject(page, a, PlaywrightTimeout)

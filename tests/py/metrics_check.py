@@ -71,6 +71,14 @@ def main():
     refused = one(first, "skyfuse_controls_refused_total")
     if refused != status["controls"]["refused"]:
         problems.append(f"controls_refused {refused} vs {status['controls']['refused']}")
+    rec = status.get("recorder")
+    if rec:
+        # The demo serves Foxglove; the recorder's counters follow the status.
+        logged = one(first, "skyfuse_recorder_messages_total")
+        if logged > rec["messages"] or logged == 0:
+            problems.append(f"recorder messages {logged} in metrics, {rec['messages']} in status")
+        if one(first, "skyfuse_recorder_dropped_total") != rec["dropped"]:
+            problems.append(f"recorder dropped vs {rec['dropped']}")
     std = [one(first, "skyfuse_estimate_position_std_meters", axis=a) for a in "xyz"]
     if any(abs(m - s) > 0.5 for m, s in zip(std, status["estimator"]["position_std"])):
         problems.append(f"position std {std} vs {status['estimator']['position_std']}")
