@@ -179,6 +179,7 @@ pub async fn run_with(
                     .map(|s| s.health_json())
                     .unwrap_or(serde_json::Value::Null)
             }),
+            tap: tap.clone(),
         },
         zenoh_out_stats,
     ));

@@ -41,6 +41,13 @@ pub enum TapItem {
         t_us: i64,
         series: Arc<DebugSeries>,
     },
+    /// A ROS 2 output skyfuse published on Zenoh (CDR of `ros_type` on `key`).
+    Ros2Out {
+        t_us: i64,
+        key: String,
+        ros_type: crate::codec::RosType,
+        payload: Vec<u8>,
+    },
     /// Shutdown: finalise the file.
     Finish,
 }
@@ -137,6 +144,17 @@ impl Tap {
             self.send(TapItem::MavlinkOut {
                 sent_us,
                 frame: frame.clone(),
+            });
+        }
+    }
+
+    pub fn ros2_out(&self, t_us: i64, key: &str, ros_type: crate::codec::RosType, payload: &[u8]) {
+        if self.is_on() {
+            self.send(TapItem::Ros2Out {
+                t_us,
+                key: key.to_string(),
+                ros_type,
+                payload: payload.to_vec(),
             });
         }
     }

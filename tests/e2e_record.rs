@@ -148,6 +148,8 @@ fn a_recorded_flight_reads_in_the_mcap_tools_and_replays_to_the_poses_sent_live(
         "/skyfuse/health",
         "/skyfuse/events",
         "/skyfuse/debug",
+        "data_fusion/pose_msg",
+        "data_fusion/OF_sum",
     ] {
         assert!(
             counts[topic].as_u64().unwrap_or(0) > 0,
@@ -161,6 +163,9 @@ fn a_recorded_flight_reads_in_the_mcap_tools_and_replays_to_the_poses_sent_live(
     assert!((250..=600).contains(&n("/skyfuse/pose")), "{counts}");
     assert!(report["vpe"].as_u64().unwrap_or(0) > 100, "{report}");
     assert!(report["poses_compared"].as_u64().unwrap_or(0) > 250);
+    let out = &report["channels"]["data_fusion/pose_msg"];
+    assert_eq!(out["schema"], "geometry_msgs/msg/PoseStamped");
+    assert_eq!(out["metadata"]["skyfuse.output"], "ros2");
     let ch = &report["channels"]["camera/odom/sample"];
     assert_eq!(ch["schema"], "nav_msgs/msg/Odometry");
     assert_eq!(ch["metadata"]["skyfuse.input"], "t265");
@@ -233,13 +238,15 @@ fn a_rosbag2_bag_written_by_rosbags_replays_like_the_recording() {
     let (_, rms, _) = live_difference(&stdout);
     assert!(rms < 0.02, "{stdout}");
 
-    // The same messages as a bag, topics as ROS names them: the same bytes out.
+    // The same messages as a bag, topics as ROS names them (with skyfuse's own ROS 2
+    // outputs in it, as `ros2 bag record -a` would have them): the same bytes out.
     let bag = tmp("bag");
     let counts = run_py(
         "rosbag2_from_recording.py",
         &[&file.display().to_string(), &bag.display().to_string()],
     );
     assert!(counts.contains("/camera/odom/sample"), "{counts}");
+    assert!(counts.contains("/data_fusion/pose_msg"), "{counts}");
     let from_bag = tmp("bag-replay");
     replay(&bag, &from_bag, &env);
     let read = |d: &Path| std::fs::read_to_string(d.join("fused.tum")).unwrap_or_default();

@@ -4,7 +4,7 @@
 //! geometry_msgs/PointStamped, so the seed's rqt_plot commands work unchanged.
 
 use crate::codec::ros::{Point, PointStamped, Pose, PoseStamped, Quaternion, RosMessage};
-use crate::codec::EncodeError;
+use crate::codec::{EncodeError, RosType};
 use crate::config::OutputConfig;
 use crate::estimator::{DebugSeries, DebugTopic, FusedPose};
 use crate::pipeline::{DebugReceiver, PoseReceiver};
@@ -152,6 +152,8 @@ pub struct ZenohOutInputs {
     pub events: broadcast::Receiver<Arc<Value>>,
     /// Builds the health JSON (the status API's sensors and estimator).
     pub health: Arc<dyn Fn() -> Value + Send + Sync>,
+    /// The ROS 2 CDR outputs go to the recorder and Foxglove too.
+    pub tap: crate::tap::Tap,
 }
 
 /// Run until the pose channel closes.
@@ -200,7 +202,11 @@ pub async fn run(
                 // ROS consumers get only valid poses: rviz and planners cannot read a flag.
                 if cfg.ros2 && p.valid {
                     match pose_stamped(&p, &cfg.ros2_frame_id) {
-                        Ok(m) => ok &= put(cfg.ros2_pose_key.clone(), m.to_cdr()).await,
+                        Ok(m) => {
+                            let cdr = m.to_cdr();
+                            inp.tap.ros2_out(p.time_us, &cfg.ros2_pose_key, RosType::PoseStamped, &cdr);
+                            ok &= put(cfg.ros2_pose_key.clone(), cdr).await;
+                        }
                         Err(e) => stats.error(format!("{}: {e}", cfg.ros2_pose_key)),
                     }
                 }
@@ -225,7 +231,10 @@ pub async fn run(
                         header,
                         point: Point { x: pt.value[0], y: pt.value[1], z: pt.value[2] },
                     };
-                    if put(format!("{}/{topic}", cfg.ros2_debug_prefix), msg.to_cdr()).await {
+                    let key = format!("{}/{topic}", cfg.ros2_debug_prefix);
+                    let cdr = msg.to_cdr();
+                    inp.tap.ros2_out(pt.time_us, &key, RosType::PointStamped, &cdr);
+                    if put(key, cdr).await {
                         stats.debug_points.fetch_add(1, Relaxed);
                     }
                 }

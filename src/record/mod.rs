@@ -29,6 +29,8 @@ pub use writer::{spawn, RecordError};
 pub const META_INPUT: &str = "skyfuse.input";
 pub const META_FORMAT: &str = "skyfuse.format";
 pub const META_ROS_TYPE: &str = "skyfuse.ros_type";
+/// Channel metadata of skyfuse's own outputs on input-like channels (ROS 2 CDR).
+pub const META_OUTPUT: &str = "skyfuse.output";
 /// Topics of the outputs.
 pub const TOPIC_POSE: &str = "/skyfuse/pose";
 pub const TOPIC_POSE_JSON: &str = "/skyfuse/pose_json";

@@ -10,7 +10,8 @@
 //! 3. otherwise, for a ROS 2 CDR channel of a type skyfuse decodes (a rosbag2 bag), a new
 //!    input named after the topic, its kind that of the first message.
 //!
-//! Channels skyfuse wrote as outputs (`/skyfuse/...`, `/tf`) are not inputs. The log time
+//! Channels skyfuse wrote as outputs (`/skyfuse/...`, `/tf`, the ROS 2 outputs of the
+//! config's `[output]`, in a bag recorded beside it too) are never inputs. The log time
 //! is the arrival time: ingest's checks (clock restarts, floods, stamps) see what they
 //! saw live, and the same recording replays to the same bytes every time.
 
@@ -117,6 +118,14 @@ pub fn samples(config: &Config, log: &McapLog) -> McapReplay {
     // Channel → input ids (by config index, fixed once the added inputs are in).
     let mut routes: BTreeMap<u16, Vec<String>> = BTreeMap::new();
     let mut uses = Vec::new();
+    // skyfuse's own ROS 2 outputs (a bag recorded with `ros2 bag record -a` beside it
+    // holds them): never fed back in as inputs.
+    let own_outputs: Vec<String> = config
+        .output
+        .ros2_outputs()
+        .into_iter()
+        .map(|(k, _)| k.trim_start_matches('/').to_string())
+        .collect();
     for (&id, ch) in &log.channels {
         let mut use_ = ChannelUse {
             topic: ch.topic.clone(),
@@ -126,8 +135,16 @@ pub fn samples(config: &Config, log: &McapLog) -> McapReplay {
             inputs: Vec::new(),
             skipped: None,
         };
-        if is_output(&ch.topic) {
+        if is_output(&ch.topic) || ch.metadata.contains_key(super::META_OUTPUT) {
             use_.skipped = Some("an output of the recorded run".into());
+            uses.push(use_);
+            continue;
+        }
+        if own_outputs
+            .iter()
+            .any(|k| k == ch.topic.trim_start_matches('/'))
+        {
+            use_.skipped = Some("one of skyfuse's own ROS 2 outputs ([output])".into());
             uses.push(use_);
             continue;
         }

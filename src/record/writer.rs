@@ -273,6 +273,7 @@ struct Writer {
     rotation: Option<Rotation>,
     frame_id: String,
     inputs: HashMap<(usize, String), Arc<RawChannel>>,
+    ros2_out: HashMap<String, Arc<RawChannel>>,
     decoded: HashMap<usize, Arc<RawChannel>>,
     pose: Channel<PoseInFrame>,
     tf: Channel<FrameTransform>,
@@ -323,6 +324,7 @@ impl Writer {
             rotation,
             frame_id: frame_id.to_string(),
             inputs: HashMap::new(),
+            ros2_out: HashMap::new(),
             decoded: HashMap::new(),
         }
     }
@@ -409,6 +411,14 @@ impl Writer {
             TapItem::MavlinkOut { sent_us, frame } => {
                 self.mavlink_out.log_with_meta(&frame, ns(sent_us))
             }
+            TapItem::Ros2Out {
+                t_us,
+                key,
+                ros_type,
+                payload,
+            } => self
+                .ros2_out_channel(&key, ros_type)
+                .log_with_meta(&payload, ns(t_us)),
             TapItem::Health { t_us, json } => log_json(&self.health, &json, ns(t_us)),
             TapItem::Event { t_us, json } => log_json(&self.events, &json, ns(t_us)),
             TapItem::Debug { t_us, series } => {
@@ -542,6 +552,26 @@ impl Writer {
         };
         self.inputs
             .insert((input, key.to_string()), channel.clone());
+        channel
+    }
+
+    /// A ROS 2 output's channel: its CDR with the `ros2msg` schema, marked as an output.
+    fn ros2_out_channel(&mut self, key: &str, t: RosType) -> Arc<RawChannel> {
+        if let Some(c) = self.ros2_out.get(key) {
+            return c.clone();
+        }
+        let channel = raw_channel(
+            self.ctx
+                .channel_builder(key)
+                .schema(foxglove::Schema::new(
+                    t.ros2_name(),
+                    "ros2msg",
+                    super::ros2msg::definition(t).as_bytes().to_vec(),
+                ))
+                .add_metadata(super::META_OUTPUT, "ros2"),
+            "cdr",
+        );
+        self.ros2_out.insert(key.to_string(), channel.clone());
         channel
     }
 

@@ -1,6 +1,7 @@
-"""Write a rosbag2 bag (MCAP storage) with rosbags, as a ROS 2 user's `ros2 bag record`
-would have it, from the ROS 2 inputs of a skyfuse recording: every CDR message, its
-type, and its receive time (the recording's arrival time) as the bag's timestamp.
+"""Write a rosbag2 bag (MCAP storage) with rosbags, as a ROS 2 user's `ros2 bag record -a`
+would have it, from a skyfuse recording: every CDR message (the inputs, and skyfuse's
+own ROS 2 outputs, which a replay must not feed back in), its type, and its receive
+time (the recording's arrival time) as the bag's timestamp.
 
     python rosbag2_from_recording.py RECORDING.mcap BAG_DIR [--rename OLD=NEW ...]
 
