@@ -2,7 +2,8 @@
 //! (the golden vectors and the payloads captured from the real bridges in tests/data):
 //! ROS 2 CDR (each supported type, both byte orders), ROS 1, mavlink-server JSON, raw
 //! MAVLink frames (v1 and v2, several per payload), skyfuse JSON, the TOML config, the
-//! websocket client message and the fault-control body.
+//! websocket client message, the fault-control body and MCAP files (`skyfuse replay
+//! FILE.mcap`: recordings as the recorder writes them, chunked and not, zstd and lz4).
 //!
 //! Each input is a seed mutated 1–8 times (bit flips, random bytes, interesting values,
 //! truncation, extension, duplication and deletion of runs, splices with another seed,
@@ -186,6 +187,11 @@ fn targets() -> Vec<Target> {
         }),
     });
     t.push(Target {
+        name: "mcap",
+        seeds: mcap_seeds(),
+        decode: Box::new(|b: &[u8]| skyfuse::replay::mcap::parse(b, &mut |_, _| {}).is_ok()),
+    });
+    t.push(Target {
         name: "control_body",
         seeds: vec![
             br#"{"sensor": "gps", "fault": "stop", "duration_s": 10}"#.to_vec(),
@@ -197,6 +203,65 @@ fn targets() -> Vec<Target> {
         }),
     });
     t
+}
+
+/// Small recordings as the recorder writes them (the Foxglove SDK's MCAP writer): a CDR
+/// channel with its ros2msg schema and a JSON one, chunked with zstd or lz4, or not.
+fn mcap_seeds() -> Vec<Vec<u8>> {
+    use foxglove::{McapCompression, McapWriteOptions, PartialMetadata, Schema};
+    let cdr: Vec<Vec<u8>> = ros_seeds(true)
+        .into_iter()
+        .map(|(_, b)| b)
+        .take(6)
+        .collect();
+    let mut out = vec![];
+    for (chunked, compression) in [
+        (true, Some(McapCompression::Zstd)),
+        (true, Some(McapCompression::Lz4)),
+        (true, None),
+        (false, None),
+    ] {
+        let ctx = foxglove::Context::new();
+        let options = McapWriteOptions::new()
+            .use_chunks(chunked)
+            .chunk_size(Some(256))
+            .compression(compression);
+        let Ok(writer) = ctx
+            .mcap_writer_with_options(options)
+            .create(std::io::Cursor::new(Vec::new()))
+        else {
+            continue;
+        };
+        let imu = ctx
+            .channel_builder("mavros/imu/data")
+            .message_encoding("cdr")
+            .schema(Schema::new(
+                "sensor_msgs/msg/Imu",
+                "ros2msg",
+                skyfuse::record::ros2msg::definition(RosType::Imu)
+                    .as_bytes()
+                    .to_vec(),
+            ))
+            .add_metadata(skyfuse::record::META_INPUT, "imu")
+            .build_raw();
+        let json = ctx
+            .channel_builder("/skyfuse/events")
+            .message_encoding("json")
+            .build_raw();
+        if let (Ok(imu), Ok(json)) = (imu, json) {
+            for (i, b) in cdr.iter().enumerate() {
+                let t = PartialMetadata {
+                    log_time: Some(1_000_000 * i as u64),
+                };
+                imu.log_with_meta(b, t);
+                json.log_with_meta(br#"{"kind":"health","message":"ok"}"#, t);
+            }
+        }
+        if let Ok(cursor) = writer.close() {
+            out.push(cursor.into_inner());
+        }
+    }
+    out
 }
 
 /// skyfuse's own JSON, as the simulator publishes it: one sample of each kind.

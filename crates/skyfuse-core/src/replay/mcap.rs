@@ -85,66 +85,156 @@ pub enum ParseError {
     Empty(String),
 }
 
-/// The pure part of [`read_mcap`]: bytes → channels and messages.
+/// The pure part of [`read_mcap`]: bytes → channels and messages. Reads with the `mcap`
+/// crate's sans-I/O linear reader, records longer than [`MAX_RECORD`] refused (a
+/// damaged length would otherwise be allocated whole, and a failed allocation aborts).
 pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> Result<McapLog, ParseError> {
+    use ::mcap::records::Record;
+    use ::mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
     if !bytes.starts_with(::mcap::MAGIC) {
         return Err(ParseError::NotMcap(
             "it does not start with MCAP's magic bytes".into(),
         ));
     }
-    // A file cut short has no end magic; read what is there.
-    let options = ::mcap::read::Options::IgnoreEndMagic.into();
-    let stream = ::mcap::MessageStream::new_with_options(bytes, options)
-        .map_err(|e| ParseError::NotMcap(e.to_string()))?;
-    let mut log = McapLog::default();
+    // A chunk whose header claims more than any real one holds ends the file there.
+    let (bytes, oversized) = cut_at_oversized_chunk(bytes);
     let total = bytes.len() as u64;
-    // Progress: message bytes so far against the file's size, every few thousand messages.
-    let mut done: u64 = 0;
-    for m in stream {
-        match m {
-            Ok(m) => {
-                let ch = &m.channel;
-                let entry = log
-                    .channels
-                    .entry(ch.id)
-                    .or_insert_with(|| RecordedChannel {
-                        topic: ch.topic.clone(),
-                        message_encoding: ch.message_encoding.clone(),
-                        schema_name: ch.schema.as_ref().map(|s| s.name.clone()),
-                        schema_encoding: ch.schema.as_ref().map(|s| s.encoding.clone()),
-                        metadata: ch.metadata.clone(),
-                        messages: 0,
-                    });
-                entry.messages += 1;
-                let m_len = m.data.len() as u64;
-                log.messages.push(RecordedMessage {
-                    channel: ch.id,
-                    log_time_ns: m.log_time,
-                    data: m.data.into_owned(),
-                });
-                done += m_len;
+    // A file cut short has no end magic; read what is there.
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_skip_end_magic(true)
+            .with_record_length_limit(MAX_RECORD),
+    );
+    let mut log = McapLog::default();
+    // Schema id → (name, encoding); channel id → its record, until its first message.
+    let mut schemas: BTreeMap<u16, (String, String)> = BTreeMap::new();
+    let mut pending: BTreeMap<u16, RecordedChannel> = BTreeMap::new();
+    let mut pos = 0usize;
+    let mut stop: Option<String> = None;
+    while let Some(event) = reader.next_event() {
+        let record = match event {
+            Ok(LinearReadEvent::ReadRequest(want)) => {
+                let n = want.min(bytes.len() - pos);
+                reader.insert(n).copy_from_slice(&bytes[pos..pos + n]);
+                reader.notify_read(n);
+                pos += n;
                 if log.messages.len() % 8192 == 0 {
-                    progress(done.min(total), total);
+                    progress(pos as u64, total);
                 }
+                continue;
             }
+            Ok(LinearReadEvent::Record { data, opcode }) => ::mcap::parse_record(opcode, data),
             Err(e) => {
-                if log.messages.is_empty() {
-                    return Err(ParseError::Empty(e.to_string()));
+                stop = Some(e.to_string());
+                break;
+            }
+        };
+        match record {
+            Ok(Record::Schema { header, .. }) => {
+                schemas.insert(header.id, (header.name, header.encoding));
+            }
+            Ok(Record::Channel(c)) => {
+                let schema = schemas.get(&c.schema_id);
+                pending.insert(
+                    c.id,
+                    RecordedChannel {
+                        topic: c.topic,
+                        message_encoding: c.message_encoding,
+                        schema_name: schema.map(|s| s.0.clone()),
+                        schema_encoding: schema.map(|s| s.1.clone()),
+                        metadata: c.metadata,
+                        messages: 0,
+                    },
+                );
+            }
+            Ok(Record::Message { header, data }) => {
+                let id = header.channel_id;
+                if !log.channels.contains_key(&id) {
+                    match pending.get(&id) {
+                        Some(c) => {
+                            log.channels.insert(id, c.clone());
+                        }
+                        None => {
+                            stop = Some(format!(
+                                "a message on channel {id}, which no Channel record declared"
+                            ));
+                            break;
+                        }
+                    }
                 }
-                log.truncated = Some(format!(
-                    "reading stopped after {} messages: {e}",
-                    log.messages.len()
-                ));
+                if let Some(c) = log.channels.get_mut(&id) {
+                    c.messages += 1;
+                }
+                log.messages.push(RecordedMessage {
+                    channel: id,
+                    log_time_ns: header.log_time,
+                    data: data.into_owned(),
+                });
+            }
+            Ok(_) => {}
+            Err(e) => {
+                stop = Some(e.to_string());
                 break;
             }
         }
     }
     progress(total, total);
-    if log.messages.is_empty() && log.truncated.is_none() {
+    if let Some(why) = stop.or(oversized) {
+        if log.messages.is_empty() {
+            return Err(ParseError::Empty(why));
+        }
+        log.truncated = Some(format!(
+            "reading stopped after {} messages: {why}",
+            log.messages.len()
+        ));
+    }
+    if log.messages.is_empty() {
         return Err(ParseError::Empty("the file holds no messages".into()));
     }
     log.messages.sort_by_key(|m| m.log_time_ns);
     Ok(log)
+}
+
+/// No record of a real recording is near this (a message is at most a camera frame).
+pub const MAX_RECORD: usize = 256 * 1024 * 1024;
+
+/// No chunk of a real recording is near this (rosbag2 and Foxglove write under 1 MiB).
+pub const MAX_CHUNK_UNCOMPRESSED: u64 = 256 * 1024 * 1024;
+
+const OP_CHUNK: u8 = 0x06;
+
+/// `bytes` up to the first chunk record claiming more than [`MAX_CHUNK_UNCOMPRESSED`]
+/// bytes uncompressed, and why it was cut. Walks the top-level records (opcode, u64
+/// length, body); a Chunk body starts with start time, end time, uncompressed size.
+fn cut_at_oversized_chunk(bytes: &[u8]) -> (&[u8], Option<String>) {
+    let mut at = ::mcap::MAGIC.len();
+    while let Some(head) = bytes.get(at..at + 9) {
+        let op = head[0];
+        let mut len = [0u8; 8];
+        len.copy_from_slice(&head[1..9]);
+        let len = u64::from_le_bytes(len);
+        let body = at + 9;
+        if op == OP_CHUNK {
+            if let Some(size) = bytes.get(body + 16..body + 24) {
+                let mut s = [0u8; 8];
+                s.copy_from_slice(size);
+                let size = u64::from_le_bytes(s);
+                if size > MAX_CHUNK_UNCOMPRESSED {
+                    return (
+                        &bytes[..at],
+                        Some(format!(
+                            "a chunk at byte {at} claims {size} bytes uncompressed (at most {MAX_CHUNK_UNCOMPRESSED} are read): a damaged file"
+                        )),
+                    );
+                }
+            }
+        }
+        match usize::try_from(len).ok().and_then(|l| body.checked_add(l)) {
+            Some(next) if next <= bytes.len() => at = next,
+            _ => break,
+        }
+    }
+    (bytes, None)
 }
 
 #[cfg(test)]
@@ -233,6 +323,30 @@ mod tests {
             log.messages.len()
         );
         assert!(log.messages.len() < 800);
+    }
+
+    #[test]
+    fn a_chunk_claiming_terabytes_ends_the_file_there_instead_of_the_process() {
+        let mut whole = file(50);
+        // The second chunk's uncompressed size: find the chunks by walking the records.
+        let mut at = ::mcap::MAGIC.len();
+        let mut chunks = vec![];
+        while at + 9 <= whole.len() {
+            let len = u64::from_le_bytes(whole[at + 1..at + 9].try_into().expect("8 bytes"));
+            if whole[at] == OP_CHUNK {
+                chunks.push(at);
+            }
+            at += 9 + len as usize;
+        }
+        assert!(chunks.len() > 2, "{} chunks", chunks.len());
+        let size_at = chunks[1] + 9 + 16;
+        whole[size_at..size_at + 8].copy_from_slice(&(1u64 << 42).to_le_bytes());
+        let log = parse(&whole, &mut |_, _| {}).expect("the part before it");
+        assert!(!log.messages.is_empty());
+        assert!(log
+            .truncated
+            .as_deref()
+            .is_some_and(|t| t.contains("claims 4398046511104 bytes")));
     }
 
     #[test]
