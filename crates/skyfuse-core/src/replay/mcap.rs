@@ -149,22 +149,19 @@ pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> Result<McapLog
             }
             Ok(Record::Message { header, data }) => {
                 let id = header.channel_id;
-                if !log.channels.contains_key(&id) {
-                    match pending.get(&id) {
-                        Some(c) => {
-                            log.channels.insert(id, c.clone());
-                        }
+                let channel = match log.channels.entry(id) {
+                    std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+                    std::collections::btree_map::Entry::Vacant(e) => match pending.get(&id) {
+                        Some(c) => e.insert(c.clone()),
                         None => {
                             stop = Some(format!(
                                 "a message on channel {id}, which no Channel record declared"
                             ));
                             break;
                         }
-                    }
-                }
-                if let Some(c) = log.channels.get_mut(&id) {
-                    c.messages += 1;
-                }
+                    },
+                };
+                channel.messages += 1;
                 log.messages.push(RecordedMessage {
                     channel: id,
                     log_time_ns: header.log_time,
