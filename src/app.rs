@@ -44,6 +44,9 @@ pub enum RunError {
 pub struct RunOptions {
     /// The demo's simulator faults, for the fault-injection control.
     pub faults: Option<Arc<FaultSchedule>>,
+    /// The Foxglove server takes any free port when its configured one is taken (the
+    /// demo: a second demo on one machine still starts).
+    pub foxglove_any_port: bool,
 }
 
 /// Kernel send buffer of each HTTP/websocket connection, bytes (Linux doubles it).
@@ -82,6 +85,7 @@ pub async fn run_with(
         &config.service.vehicle,
         &config.output.ros2_frame_id,
         ingest.clone(),
+        options.foxglove_any_port,
     )
     .await?;
     let recorder = recorder.map(Arc::new);

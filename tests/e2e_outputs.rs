@@ -312,6 +312,121 @@ fn one_input_flooded_is_shed_and_the_others_lose_nothing() {
 }
 
 #[test]
+fn a_flood_on_a_clock_a_day_behind_is_shed_and_the_real_gps_recovers_at_once() {
+    // Beside the real GPS, a publisher floods gps/fix with messages stamped a day in the
+    // past and advancing: a consistent second series, the worst case for the clock
+    // restart detector. The flood is shed, nothing else is dropped, the estimate stays
+    // valid, and within seconds of the flood ending the real GPS is accepted and ok.
+    let (svc, _udp) = demo_with_mavlink_udp();
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
+    let flood = json(&run_py(
+        "flood.py",
+        &[
+            "--connect",
+            &svc.zenoh_endpoint(),
+            "--key",
+            "gps/fix",
+            "--seconds",
+            "5",
+            "--clock-jump",
+            "-86400",
+        ],
+    ));
+    let during = svc.get_json("/api/v1/status");
+    assert!(flood["put"].as_u64().unwrap_or(0) > 2_000, "{flood}");
+    assert_eq!(
+        during["estimator"]["valid"], true,
+        "{}",
+        during["estimator"]
+    );
+    for other in during["sensors"].as_array().expect("sensors") {
+        assert_eq!(other["dropped"], 0, "{}", other["id"]);
+    }
+    let accepted = |s: &serde_json::Value| sensor(s, "gps")["accepted"].as_u64().unwrap_or(0);
+    let ended = std::time::Instant::now();
+    let base = accepted(&during);
+    // The real GPS at 10 Hz: 20 more accepted, and healthy, within 5 s.
+    let after = svc.wait_status(Duration::from_secs(5), |s| {
+        accepted(s) >= base + 20 && sensor(s, "gps")["health"] == "ok"
+    });
+    let gps = sensor(&after, "gps");
+    println!(
+        "flood: {flood}; recovered in {:.1} s; gps: {gps}",
+        ended.elapsed().as_secs_f64()
+    );
+    assert!(
+        accepted(&after) >= base + 20 && gps["health"] == "ok",
+        "the real GPS is still refused after the flood: {gps}"
+    );
+    assert_eq!(after["estimator"]["valid"], true);
+}
+
+#[test]
+fn mavlink_server_killed_and_restarted_is_seen_and_nothing_else_notices() {
+    // The real mavlink-server between an autopilot stand-in (pymavlink frames over TCP)
+    // and skyfuse: killed, down 3 s, started again. The autopilot input goes stale and
+    // comes back on its own; the other sensors, the estimate and the VPE carry on.
+    let msrv = common::peers_dir().join("bin/mavlink-server");
+    if !msrv.exists() {
+        eprintln!(
+            "SKIPPED mavlink_server_killed_and_restarted: no {} ($SKYFUSE_PEERS)",
+            msrv.display()
+        );
+        return;
+    }
+    // The `autopilot` input (LOCAL_POSITION_NED, compared, never fused) is input 6.
+    let svc = Service::start(
+        &["demo", "--no-browser"],
+        &[("SKYFUSE__INPUTS__6__ENABLED", "true")],
+    );
+    svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
+    let r = json(&run_py(
+        "msrv_restart.py",
+        &[
+            "--mavlink-server",
+            msrv.to_str().expect("path"),
+            "--zenoh",
+            &svc.zenoh_endpoint(),
+            "--http",
+            &svc.http_port.to_string(),
+        ],
+    ));
+    println!("{r}");
+    assert!(r["error"].is_null(), "{r}");
+    let stale = r["stale_after_s"].as_f64().unwrap_or(f64::NAN);
+    let back = r["ok_again_after_restart_s"].as_f64().unwrap_or(f64::NAN);
+    // Stale after 5 periods (167 ms) plus the health tick; back once mavlink-server has
+    // reconnected to both sides (it takes about a second to start).
+    assert!(stale < 2.0, "stale after {stale} s: {r}");
+    assert!(back < 10.0, "ok again after {back} s: {r}");
+    for (phase, key) in [("while_down", "others"), ("after", "others")] {
+        for (id, v) in r[phase][key].as_object().expect("others") {
+            assert_eq!(v[0], "ok", "{id} {phase}: {r}");
+            assert_eq!(v[1], 0, "{id} dropped {phase}: {r}");
+        }
+    }
+    assert_eq!(r["while_down"]["valid"], true, "{r}");
+    assert_eq!(r["after"]["valid"], true, "{r}");
+    assert!(
+        r["after"]["received"].as_u64() > r["before"]["received"].as_u64(),
+        "{r}"
+    );
+    assert_eq!(r["after"]["rejected"], 0, "{r}");
+    let vpe = r["after"]["vpe_sent"].as_u64().unwrap_or(0)
+        - r["before"]["vpe_sent"].as_u64().unwrap_or(0);
+    assert!(
+        vpe > 100,
+        "VPE kept going: {vpe} in the outage and after: {r}"
+    );
+    // The outage and the recovery are events on Zenoh as well as in the status.
+    let events = r["events"].to_string();
+    assert!(
+        events.contains("stale") && events.contains("ok"),
+        "autopilot events: {events}"
+    );
+}
+
+#[test]
 fn a_tcp_peer_that_restarts_gets_vpe_again() {
     // skyfuse connects out (`tcpout:`) to a server that is not there yet, then is, then
     // closes and refuses for 2 s, then listens again on the same port.

@@ -494,21 +494,11 @@ async fn demo(
     c.zenoh.multicast_scouting = false;
     c.http.bind = "127.0.0.1:8080".into();
     c.service.vehicle = "demo".into();
-    // Foxglove on its usual port, unless that is taken (another demo): then any port,
-    // logged, rather than no demo.
-    if c.foxglove.bind.is_none() {
-        let free = std::net::TcpListener::bind(crate::config::DEMO_FOXGLOVE_BIND).is_ok();
-        if !free {
-            tracing::warn!(
-                "{} is in use: Foxglove gets another port (see the log below)",
-                crate::config::DEMO_FOXGLOVE_BIND
-            );
-        }
-        c.foxglove.bind = Some(if free {
-            crate::config::DEMO_FOXGLOVE_BIND.into()
-        } else {
-            "127.0.0.1:0".into()
-        });
+    // Foxglove on its usual port; if that is taken (another demo), any port (logged)
+    // rather than no demo: see RunOptions::foxglove_any_port.
+    let foxglove_default = c.foxglove.bind.is_none();
+    if foxglove_default {
+        c.foxglove.bind = Some(crate::config::DEMO_FOXGLOVE_BIND.into());
     }
     net.apply(&mut c)?;
     record.apply(&mut c)?;
@@ -576,6 +566,7 @@ async fn demo(
     };
     let options = app::RunOptions {
         faults: Some(faults),
+        foxglove_any_port: foxglove_default && record.foxglove.is_none(),
     };
     let result = app::run_with(c, Listeners { http, zenoh }, options, shutdown)
         .await

@@ -84,6 +84,7 @@ pub async fn spawn(
     vehicle: &str,
     frame_id: &str,
     ingest: Arc<Ingest>,
+    any_port_if_taken: bool,
 ) -> Result<(Tap, Option<Recorder>), RecordError> {
     let dir = record.dir.clone().filter(|d| !d.is_empty());
     let bind = foxglove.bind.clone().filter(|b| !b.is_empty());
@@ -97,16 +98,23 @@ pub async fn spawn(
                 .rsplit_once(':')
                 .and_then(|(h, p)| Some((h.trim_matches(['[', ']']), p.parse::<u16>().ok()?)))
                 .ok_or_else(|| RecordError::Bind { bind: b.clone() })?;
-            let handle = ctx
-                .websocket_server()
-                .name(format!("skyfuse {vehicle}"))
-                .bind(host, port)
-                .start()
-                .await
-                .map_err(|e| RecordError::Server {
-                    bind: b.clone(),
-                    message: e.to_string(),
-                })?;
+            let start = |port: u16| {
+                ctx.websocket_server()
+                    .name(format!("skyfuse {vehicle}"))
+                    .bind(host, port)
+                    .start()
+            };
+            let handle = match start(port).await {
+                Err(e) if any_port_if_taken && port != 0 => {
+                    tracing::warn!("Foxglove: {b} unavailable ({e}); taking any free port");
+                    start(0).await
+                }
+                other => other,
+            }
+            .map_err(|e| RecordError::Server {
+                bind: b.clone(),
+                message: e.to_string(),
+            })?;
             tracing::info!(port = handle.port(), "Foxglove WebSocket server on {host}");
             Some(handle)
         }

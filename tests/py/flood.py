@@ -4,6 +4,8 @@ CDR) as fast as Python can put them on Zenoh, each saying "no fix" (so whatever 
 through changes no estimate). Prints JSON: how many were put, over how long.
 
   flood.py --connect tcp/127.0.0.1:7447 --key gps/fix --seconds 5
+  flood.py ... --clock-jump -86400   # stamped on a clock a day behind, advancing with
+                                     # time: a consistent series beside the real one
 """
 import argparse
 import json
@@ -23,6 +25,8 @@ def main():
     ap.add_argument("--connect", required=True)
     ap.add_argument("--key", required=True)
     ap.add_argument("--seconds", type=float, default=5)
+    ap.add_argument("--clock-jump", type=float, default=None,
+                    help="stamp each message now + this many seconds (default: one fixed stamp)")
     a = ap.parse_args()
     ts = get_typestore(Stores.ROS2_HUMBLE)
     t = ts.types
@@ -39,6 +43,11 @@ def main():
     pub = session.declare_publisher(a.key)
     n, start = 0, time.time()
     while time.time() - start < a.seconds:
+        if a.clock_jump is not None:
+            t_msg = time.time() + a.clock_jump
+            msg.header.stamp.sec = int(t_msg)
+            msg.header.stamp.nanosec = int((t_msg % 1) * 1e9)
+            payload = bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/NavSatFix"))
         pub.put(payload)
         n += 1
     elapsed = time.time() - start

@@ -1,11 +1,14 @@
 #!/usr/bin/env python3
 """Soak: `skyfuse demo` for a long run with many websocket clients, half of which never
 read, sampled every minute: resident memory, CPU, samples consumed and dropped, late
-drops, websocket drops, VPE sent, validity. Writes soak.csv and soak.svg (memory and
-CPU over time) to --out and prints a JSON summary; exits non-zero when memory grows
-more than 5 % after warm-up or a sample is dropped.
+drops, websocket drops, VPE sent, validity, and with --record the flight recorder
+(files rotated every --rotate-s; afterwards every file is opened with the MCAP
+project's reader and its messages counted against what the recorder logged). Writes
+soak.csv and soak.svg (memory and CPU over time) to --out and prints a JSON summary;
+exits non-zero when memory grows more than 5 % after warm-up, a sample is dropped, or
+the recorder dropped or lost anything.
 
-  soak.py --binary target/release/skyfuse --minutes 60 --clients 20 --out out/soak
+  soak.py --binary target/release/skyfuse --minutes 60 --clients 20 --record --out out/soak
 """
 import argparse
 import json
@@ -86,12 +89,18 @@ def main():
     ap.add_argument("--warmup", type=float, default=5, help="minutes before memory is compared")
     ap.add_argument("--every", type=float, default=60, help="seconds between samples")
     ap.add_argument("--out", required=True)
+    ap.add_argument("--record", action="store_true", help="run the flight recorder too")
+    ap.add_argument("--rotate-s", type=float, default=600, help="recorder file rotation, s")
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
     port = free_port()
     log = open(os.path.join(a.out, "skyfuse.log"), "w")
+    record_dir = os.path.join(a.out, "recording")
+    extra = ["--record", record_dir] if a.record else []
+    env = {**os.environ, "SKYFUSE__RECORD__MAX_FILE_S": str(a.rotate_s)}
     svc = subprocess.Popen([a.binary, "demo", "--no-browser", "--no-multicast", "--http", f"127.0.0.1:{port}",
-                            "--listen", f"tcp/127.0.0.1:{free_port()}"], stdout=log, stderr=subprocess.STDOUT)
+                            "--listen", f"tcp/127.0.0.1:{free_port()}", *extra], stdout=log,
+                           stderr=subprocess.STDOUT, env=env)
     try:
         for _ in range(100):
             try:
@@ -132,6 +141,10 @@ def main():
                 "vpe_sent": st["outputs"][0]["sent"],
                 "valid": (st["estimator"] or {}).get("valid", False),
                 "frames_read": sum(counts),
+                "recorder_messages": (st.get("recorder") or {}).get("messages", 0),
+                "recorder_dropped": (st.get("recorder") or {}).get("dropped", 0),
+                "recorder_files": (st.get("recorder") or {}).get("files", 0),
+                "recorder_mib": round((st.get("recorder") or {}).get("bytes", 0) / 2**20, 1),
             })
             last_cpu, last_t = cpu, now
             print(json.dumps(rows[-1]), flush=True)
@@ -140,6 +153,7 @@ def main():
         stop.set()
         for s in stalled:
             s.close()
+        final = status(port)
     finally:
         svc.terminate()
         svc.wait(timeout=10)
@@ -166,12 +180,32 @@ def main():
         "vpe_sent": rows[-1]["vpe_sent"],
         "valid_every_sample": all(r["valid"] for r in rows),
     }
+    if a.record:
+        from mcap.reader import make_reader
+        files = sorted(os.listdir(record_dir))
+        in_files = 0
+        for name in files:
+            with open(os.path.join(record_dir, name), "rb") as f:
+                in_files += make_reader(f).get_summary().statistics.message_count
+        logged = final["recorder"]["messages"]
+        summary["recorder"] = {
+            "files": len(files),
+            "mib": round(sum(os.path.getsize(os.path.join(record_dir, n)) for n in files) / 2**20, 1),
+            "dropped": final["recorder"]["dropped"],
+            "logged_at_last_status": logged,
+            "messages_in_files": in_files,
+        }
     print(json.dumps(summary))
     bad = []
     if growth > 0.05:
         bad.append(f"memory grew {100 * growth:.1f} % after warm-up")
     if rows[-1]["input_dropped"] or rows[-1]["late_dropped"]:
         bad.append("samples dropped")
+    if a.record:
+        r = summary["recorder"]
+        # Read a moment before the stop: the files hold that and what came after.
+        if r["dropped"] or r["messages_in_files"] < r["logged_at_last_status"]:
+            bad.append(f"recorder: {r}")
     if bad:
         sys.exit("; ".join(bad))
 
