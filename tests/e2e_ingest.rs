@@ -253,3 +253,90 @@ fn sigterm_while_waiting_for_the_router_exits_cleanly() {
         .log_text()
         .contains("stopped before the Zenoh session opened"));
 }
+
+#[test]
+fn zenoh_with_mutual_tls_and_access_control_lets_only_the_named_bridge_in() {
+    // skyfuse listens on Zenoh over TLS only, with mutual TLS and an access control
+    // list (tests/py/zenoh_tls.py: default deny; the certificate named sensor-bridge may
+    // put on the input keys). Four publishers of gps/fix, each for 3 s at 10 Hz: the
+    // bridge's samples arrive; a certificate of the same CA with another name is let in
+    // by TLS but its puts are denied; a certificate of another CA, and plain TCP to the
+    // TLS port, get no session at all.
+    let dir = std::env::temp_dir().join(format!("skyfuse-tls-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let zport = free_port();
+    let setup = run_py(
+        "zenoh_tls.py",
+        &["setup", dir.to_str().expect("path"), &zport.to_string()],
+    );
+    let config: serde_json::Value = serde_json::from_str(setup.trim()).expect("setup");
+    let http = free_port();
+    let log = std::fs::File::create(dir.join("skyfuse.log")).expect("log");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_skyfuse"))
+        .args(["run", "--http", &format!("127.0.0.1:{http}")])
+        .env(
+            "SKYFUSE__ZENOH__CONFIG_FILE",
+            config["config"].as_str().expect("path"),
+        )
+        // The file's TLS endpoint only: the default config's tcp/0.0.0.0:7447 would
+        // otherwise be applied on top of it.
+        .env("SKYFUSE__ZENOH__LISTEN", "[]")
+        .env("SKYFUSE__ZENOH__MULTICAST_SCOUTING", "false")
+        .env("RUST_LOG", "info,zenoh=warn")
+        .stdout(log.try_clone().expect("log"))
+        .stderr(log)
+        .spawn()
+        .expect("skyfuse");
+    let start = Instant::now();
+    while http_get(http, "/healthz").ok().map(|r| r.0) != Some(200) {
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "skyfuse did not start: {}",
+            std::fs::read_to_string(dir.join("skyfuse.log")).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let gps = || -> u64 {
+        let (_, body) = http_get(http, "/api/v1/status").expect("status");
+        let s: serde_json::Value = serde_json::from_str(&body).expect("json");
+        sensor(&s, "gps")["received"].as_u64().unwrap_or(0)
+    };
+    let mut seen = vec![];
+    for who in ["bridge", "intruder", "stranger", "plain"] {
+        let before = gps();
+        let out = run_py(
+            "zenoh_tls.py",
+            &[
+                "publish",
+                dir.to_str().expect("path"),
+                &zport.to_string(),
+                who,
+                "3",
+            ],
+        );
+        std::thread::sleep(Duration::from_millis(300));
+        let r: serde_json::Value = serde_json::from_str(out.trim()).expect("publish");
+        seen.push((who, gps() - before, r));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    println!("{seen:?}");
+    let got = |w: &str| seen.iter().find(|s| s.0 == w).map(|s| s.1).unwrap_or(0);
+    let linked = |w: &str| {
+        seen.iter()
+            .find(|s| s.0 == w)
+            .and_then(|s| s.2["linked_peers"].as_u64())
+            .unwrap_or(0)
+    };
+    assert!(got("bridge") >= 25, "the bridge's 30 samples: {seen:?}");
+    assert_eq!(linked("intruder"), 1, "TLS lets the intruder in: {seen:?}");
+    assert_eq!(
+        got("intruder"),
+        0,
+        "the access control keeps its puts out: {seen:?}"
+    );
+    assert_eq!(linked("stranger"), 0, "another CA: no session: {seen:?}");
+    assert_eq!(got("stranger"), 0, "{seen:?}");
+    assert_eq!(linked("plain"), 0, "plain TCP to the TLS port: {seen:?}");
+    assert_eq!(got("plain"), 0, "{seen:?}");
+}

@@ -89,8 +89,6 @@ pub enum ParseError {
 /// crate's sans-I/O linear reader, records longer than [`MAX_RECORD`] refused (a
 /// damaged length would otherwise be allocated whole, and a failed allocation aborts).
 pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> Result<McapLog, ParseError> {
-    use ::mcap::records::Record;
-    use ::mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
     if !bytes.starts_with(::mcap::MAGIC) {
         return Err(ParseError::NotMcap(
             "it does not start with MCAP's magic bytes".into(),
@@ -99,13 +97,57 @@ pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> Result<McapLog
     // A chunk whose header claims more than any real one holds ends the file there.
     let (bytes, oversized) = cut_at_oversized_chunk(bytes);
     let total = bytes.len() as u64;
+    let mut log = McapLog::default();
+    // The `mcap` crate's reader can still panic on a damaged file (0.26: a record longer
+    // than what is left of its chunk underflows a counter; debug builds panic, release
+    // builds read on from a wrapped count): what was read before stays, the rest is cut.
+    let stop = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        read_records(bytes, &mut log, &mut *progress)
+    })) {
+        Ok(stop) => stop,
+        Err(panic) => {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "a panic".into());
+            Some(format!(
+                "the MCAP reader failed on a damaged record ({what})"
+            ))
+        }
+    };
+    progress(total, total);
+    if let Some(why) = stop.or(oversized) {
+        if log.messages.is_empty() {
+            return Err(ParseError::Empty(why));
+        }
+        log.truncated = Some(format!(
+            "reading stopped after {} messages: {why}",
+            log.messages.len()
+        ));
+    }
+    if log.messages.is_empty() {
+        return Err(ParseError::Empty("the file holds no messages".into()));
+    }
+    log.messages.sort_by_key(|m| m.log_time_ns);
+    Ok(log)
+}
+
+/// The records of `bytes` into `log`; why reading stopped early, if it did.
+fn read_records(
+    bytes: &[u8],
+    log: &mut McapLog,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Option<String> {
+    use ::mcap::records::Record;
+    use ::mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    let total = bytes.len() as u64;
     // A file cut short has no end magic; read what is there.
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_skip_end_magic(true)
             .with_record_length_limit(MAX_RECORD),
     );
-    let mut log = McapLog::default();
     // Schema id → (name, encoding); channel id → its record, until its first message.
     let mut schemas: BTreeMap<u16, (String, String)> = BTreeMap::new();
     let mut pending: BTreeMap<u16, RecordedChannel> = BTreeMap::new();
@@ -175,21 +217,7 @@ pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> Result<McapLog
             }
         }
     }
-    progress(total, total);
-    if let Some(why) = stop.or(oversized) {
-        if log.messages.is_empty() {
-            return Err(ParseError::Empty(why));
-        }
-        log.truncated = Some(format!(
-            "reading stopped after {} messages: {why}",
-            log.messages.len()
-        ));
-    }
-    if log.messages.is_empty() {
-        return Err(ParseError::Empty("the file holds no messages".into()));
-    }
-    log.messages.sort_by_key(|m| m.log_time_ns);
-    Ok(log)
+    stop
 }
 
 /// No record of a real recording is near this (a message is at most a camera frame).
