@@ -160,7 +160,7 @@ fn read_records(
                 reader.insert(n).copy_from_slice(&bytes[pos..pos + n]);
                 reader.notify_read(n);
                 pos += n;
-                if log.messages.len() % 8192 == 0 {
+                if log.messages.len().is_multiple_of(8192) {
                     progress(pos as u64, total);
                 }
                 continue;
