@@ -37,6 +37,8 @@ pub enum RunError {
     Http(std::io::Error),
     #[error(transparent)]
     Record(#[from] crate::record::RecordError),
+    #[error(transparent)]
+    Tls(#[from] crate::http::tls::TlsError),
 }
 
 /// Optional parts of a run.
@@ -74,6 +76,13 @@ pub async fn run_with(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), RunError> {
     let config = Arc::new(config);
+    // HTTPS: a bad certificate or key fails the start, naming the file.
+    let tls = match (&config.http.tls_cert, &config.http.tls_key) {
+        (Some(cert), Some(key)) if !cert.is_empty() && !key.is_empty() => {
+            Some(crate::http::tls::server_config(cert, key)?)
+        }
+        _ => None,
+    };
     let ingest = Arc::new(Ingest::new(&config));
     let (tx, rx) = mpsc::channel::<Sample>(config.ingest.channel_capacity);
     let session = listeners.zenoh;
@@ -205,6 +214,7 @@ pub async fn run_with(
         zid = %zid,
         zenoh = ?locators,
         http = %http_addr,
+        https = tls.is_some(),
         inputs = config.inputs.iter().filter(|i| i.enabled).count(),
         "skyfuse running"
     );
@@ -212,16 +222,31 @@ pub async fn run_with(
     // A small kernel send buffer per connection: a stalled browser then fills its own
     // bounded queue (and drops, counted) within seconds instead of hiding megabytes
     // of stale frames in the kernel.
-    let http = axum::serve::ListenerExt::tap_io(listeners.http, |tcp| {
+    let socket_options = |tcp: &tokio::net::TcpStream| {
         let _ = tcp.set_nodelay(true);
-        let _ = socket2::SockRef::from(&*tcp).set_send_buffer_size(HTTP_SEND_BUFFER);
-    });
+        let _ = socket2::SockRef::from(tcp).set_send_buffer_size(HTTP_SEND_BUFFER);
+    };
     // The peer address reaches the handlers (refused controls are limited per address).
     let app = app.into_make_service_with_connect_info::<std::net::SocketAddr>();
-    axum::serve(http, app)
-        .with_graceful_shutdown(shutdown)
-        .await
-        .map_err(RunError::Http)?;
+    use axum::serve::ListenerExt;
+    match tls {
+        Some(tls) => {
+            let https = crate::http::tls::TlsListener::new(listeners.http, tls)
+                .map_err(RunError::Http)?
+                .tap_io(move |s| socket_options(s.get_ref().0));
+            axum::serve(https, app)
+                .with_graceful_shutdown(shutdown)
+                .await
+                .map_err(RunError::Http)?;
+        }
+        None => {
+            let http = listeners.http.tap_io(move |s| socket_options(s));
+            axum::serve(http, app)
+                .with_graceful_shutdown(shutdown)
+                .await
+                .map_err(RunError::Http)?;
+        }
+    }
 
     tracing::info!("shutting down");
     // Our ROS topics go away with us.

@@ -168,6 +168,10 @@ pub struct HttpConfig {
     pub bind: String,
     /// Token for state-changing controls; empty disables them. Never shown by the API.
     pub token: String,
+    /// HTTPS: the certificate chain (PEM, leaf first) and its private key; both or
+    /// neither (plain HTTP).
+    pub tls_cert: Option<String>,
+    pub tls_key: Option<String>,
 }
 
 impl Default for HttpConfig {
@@ -175,6 +179,8 @@ impl Default for HttpConfig {
         Self {
             bind: DEFAULT_HTTP_BIND.to_string(),
             token: String::new(),
+            tls_cert: None,
+            tls_key: None,
         }
     }
 }
@@ -486,6 +492,10 @@ impl Config {
 
     /// Cross-field checks serde cannot express.
     pub fn validate(&self) -> Result<(), String> {
+        let nonempty = |s: &Option<String>| s.as_deref().is_some_and(|s| !s.is_empty());
+        if nonempty(&self.http.tls_cert) != nonempty(&self.http.tls_key) {
+            return Err("[http] tls_cert and tls_key go together (HTTPS needs both)".into());
+        }
         let r = &self.record;
         for (name, v) in [
             ("max_file_mb", r.max_file_mb),

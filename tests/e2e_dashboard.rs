@@ -205,3 +205,91 @@ fn a_client_that_never_reads_does_not_slow_the_others() {
         s["ingest"]
     );
 }
+
+/// A self-signed certificate for 127.0.0.1 (openssl): (cert, key).
+fn self_signed(dir: &std::path::Path, name: &str) -> (String, String) {
+    std::fs::create_dir_all(dir).expect("dir");
+    let (cert, key) = (
+        dir.join(format!("{name}.pem")),
+        dir.join(format!("{name}.key")),
+    );
+    let ok = std::process::Command::new("openssl")
+        .args([
+            "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2",
+        ])
+        .args([
+            "-subj",
+            "/CN=skyfuse",
+            "-addext",
+            "subjectAltName=IP:127.0.0.1",
+        ])
+        .arg("-keyout")
+        .arg(&key)
+        .arg("-out")
+        .arg(&cert)
+        .output()
+        .expect("openssl");
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    (cert.display().to_string(), key.display().to_string())
+}
+
+#[test]
+fn https_serves_page_and_api_over_tls_only_and_the_healthcheck_asks_over_tls() {
+    let dir = std::env::temp_dir().join(format!("skyfuse-https-{}", std::process::id()));
+    let (cert, key) = self_signed(&dir, "https");
+    let env = [
+        ("SKYFUSE__HTTP__TLS_CERT", cert.as_str()),
+        ("SKYFUSE__HTTP__TLS_KEY", key.as_str()),
+    ];
+    let svc = Service::spawn(&["demo", "--no-browser"], &env);
+    let out = json(&run_py(
+        "https_check.py",
+        &["--port", &svc.http_port.to_string(), "--ca", &cert],
+    ));
+    assert_eq!(out["page"], serde_json::json!([200, true, true]), "{out}");
+    assert_eq!(out["access"], serde_json::json!([200, true]), "{out}");
+    assert_eq!(out["status"], serde_json::json!([200, "skyfuse"]), "{out}");
+    assert!(
+        out["plain_http"]
+            .as_str()
+            .is_some_and(|s| s.starts_with("refused")),
+        "plain HTTP gets no answer: {out}"
+    );
+    assert!(
+        out["untrusted"]
+            .as_str()
+            .is_some_and(|s| s.starts_with("refused")),
+        "{out}"
+    );
+    // The container's HEALTHCHECK: over TLS, trusting exactly the configured cert.
+    let healthcheck = |cert: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_skyfuse"))
+            .args([
+                "healthcheck",
+                "--http",
+                &format!("127.0.0.1:{}", svc.http_port),
+            ])
+            .env("SKYFUSE__HTTP__TLS_CERT", cert)
+            .env("SKYFUSE__HTTP__TLS_KEY", &key)
+            .output()
+            .expect("healthcheck")
+    };
+    let good = healthcheck(&cert);
+    assert!(
+        good.status.success(),
+        "{}",
+        String::from_utf8_lossy(&good.stderr)
+    );
+    let (other, _) = self_signed(&dir, "other");
+    let bad = healthcheck(&other);
+    assert_eq!(bad.status.code(), Some(1), "another certificate: unhealthy");
+    assert!(
+        String::from_utf8_lossy(&bad.stderr).contains("not the configured tls_cert"),
+        "{}",
+        String::from_utf8_lossy(&bad.stderr)
+    );
+}

@@ -256,12 +256,13 @@ fn sigterm_while_waiting_for_the_router_exits_cleanly() {
 
 #[test]
 fn zenoh_with_mutual_tls_and_access_control_lets_only_the_named_bridge_in() {
-    // skyfuse listens on Zenoh over TLS only, with mutual TLS and an access control
-    // list (tests/py/zenoh_tls.py: default deny; the certificate named sensor-bridge may
-    // put on the input keys). Four publishers of gps/fix, each for 3 s at 10 Hz: the
-    // bridge's samples arrive; a certificate of the same CA with another name is let in
-    // by TLS but its puts are denied; a certificate of another CA, and plain TCP to the
-    // TLS port, get no session at all.
+    // skyfuse listens on Zenoh over TLS only, with mutual TLS and the access control list
+    // of the shipped config/zenoh-secure.json5 (default deny; the certificate named
+    // sensor-bridge may put on the input keys; any authenticated peer may watch the
+    // outputs). Four publishers of gps/fix, each for 3 s at 10 Hz, each also subscribed
+    // to skyfuse's health: the bridge's samples arrive; a certificate of the same CA with
+    // another name is let in by TLS, sees the health, but its puts are denied; a
+    // certificate of another CA, and plain TCP to the TLS port, get no session at all.
     let dir = std::env::temp_dir().join(format!("skyfuse-tls-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let zport = free_port();

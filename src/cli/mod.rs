@@ -266,26 +266,35 @@ fn healthcheck(
     http: Option<&str>,
     timeout_s: f64,
 ) -> Result<(), String> {
-    use std::io::{Read, Write};
-    let bind = match http {
-        Some(h) => h.to_string(),
-        None => {
-            Config::load(config, env_vars())
-                .map_err(|e| e.to_string())?
-                .http
-                .bind
-        }
+    use std::io::Read;
+    let config = Config::load(config, env_vars());
+    let bind = match (http, &config) {
+        (Some(h), _) => h.to_string(),
+        (None, Ok(c)) => c.http.bind.clone(),
+        (None, Err(e)) => return Err(e.to_string()),
     };
+    // With HTTPS configured, ask over TLS, trusting exactly the configured certificate.
+    let tls_cert = config
+        .ok()
+        .and_then(|c| c.http.tls_cert)
+        .filter(|c| !c.is_empty());
     let addr = probe_addr(&bind)?;
     let timeout = std::time::Duration::from_secs_f64(timeout_s.clamp(0.1, 60.0));
-    let mut stream = std::net::TcpStream::connect_timeout(&addr, timeout)
+    let stream = std::net::TcpStream::connect_timeout(&addr, timeout)
         .map_err(|e| format!("cannot connect to {addr}: {e}"))?;
     let io = |e: std::io::Error| format!("{addr}: {e}");
     stream.set_read_timeout(Some(timeout)).map_err(io)?;
     stream.set_write_timeout(Some(timeout)).map_err(io)?;
-    write!(stream, "GET /healthz HTTP/1.0\r\nHost: {addr}\r\n\r\n").map_err(io)?;
-    let mut answer = Vec::new();
-    stream.take(4096).read_to_end(&mut answer).map_err(io)?;
+    let ask = |s: &mut dyn ReadWrite| -> Result<Vec<u8>, String> {
+        write!(s, "GET /healthz HTTP/1.0\r\nHost: {addr}\r\n\r\n").map_err(io)?;
+        let mut answer = Vec::new();
+        s.take(4096).read_to_end(&mut answer).map_err(io)?;
+        Ok(answer)
+    };
+    let answer = match tls_cert {
+        Some(cert) => ask(&mut crate::http::tls::pinned_client(&cert, stream)?)?,
+        None => ask(&mut { stream })?,
+    };
     let answer = String::from_utf8_lossy(&answer);
     match http_status(&answer) {
         Some(200) => Ok(()),
@@ -296,6 +305,10 @@ fn healthcheck(
         None => Err(format!("{addr}/healthz: not an HTTP answer")),
     }
 }
+
+/// A byte stream the health check speaks HTTP over (plain TCP or TLS).
+trait ReadWrite: std::io::Read + std::io::Write {}
+impl<T: std::io::Read + std::io::Write> ReadWrite for T {}
 
 /// The address to probe for a bind address: a wildcard host is asked on loopback.
 fn probe_addr(bind: &str) -> Result<std::net::SocketAddr, String> {

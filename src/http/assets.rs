@@ -7,6 +7,7 @@ use axum::response::{IntoResponse, Response};
 const INDEX_HTML: &str = include_str!("../../web/index.html");
 const APP_JS: &str = include_str!("../../web/app.js");
 const APP_CSS: &str = include_str!("../../web/app.css");
+const ACCESS_HTML: &str = include_str!("../../web/access.html");
 const UPLOT_JS: &str = include_str!("../../web/node_modules/uplot/dist/uPlot.iife.min.js");
 const UPLOT_CSS: &str = include_str!("../../web/node_modules/uplot/dist/uPlot.min.css");
 
@@ -31,6 +32,7 @@ pub async fn serve(name: &'static str) -> Response {
         "index.html" => file(INDEX_HTML, HTML),
         "app.js" => file(APP_JS, JS),
         "app.css" => file(APP_CSS, CSS),
+        "access.html" => file(ACCESS_HTML, HTML),
         _ => StatusCode::NOT_FOUND.into_response(),
     }
 }

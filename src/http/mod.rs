@@ -19,6 +19,7 @@ use std::time::Duration;
 mod assets;
 pub mod metrics;
 mod state;
+pub mod tls;
 
 pub use state::{AppState, SensorView, Status};
 
@@ -27,6 +28,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/", get(|| assets::serve("index.html")))
         .route("/app.js", get(|| assets::serve("app.js")))
         .route("/app.css", get(|| assets::serve("app.css")))
+        .route("/access", get(|| assets::serve("access.html")))
         .route("/vendor/{file}", get(vendor))
         .route("/healthz", get(healthz))
         .route("/api/v1/status", get(status))

@@ -10,10 +10,12 @@
                                    of another CA: the TLS handshake fails), plain (TCP to
                                    the TLS port: no session)
 
-`setup` writes DIR/skyfuse-zenoh.json5: listen on tls/127.0.0.1:PORT only, mTLS, and an
-access control list that denies by default and lets the subject with certificate CN
-`sensor-bridge` put on the input keys, and anyone subscribe to skyfuse's outputs.
-`publish` prints JSON: whether the session opened, how many were put.
+`setup` writes DIR/skyfuse-zenoh.json5 from the shipped example config/zenoh-secure.json5
+(its placeholders filled in): listen on tls/127.0.0.1:PORT only, mTLS, and an access
+control list that denies by default, lets the certificate named `sensor-bridge` put on
+the input keys, and any authenticated peer watch skyfuse's outputs. `publish` prints
+JSON: whether the session opened and linked, how many were put, and how many of
+skyfuse's health messages (`skyfuse/vehicle1/health`, 1 Hz) it received meanwhile.
 """
 import json
 import os
@@ -53,31 +55,13 @@ def setup(d, port):
     make_cert(d, "ca", "intruder", "intruder")
     make_cert(d, "other-ca", "stranger", "sensor-bridge")
     p = lambda n: os.path.join(d, n)  # noqa: E731
-    conf = {
-        "mode": "peer",
-        "listen": {"endpoints": [f"tls/127.0.0.1:{port}"]},
-        "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"tls": {
-            "root_ca_certificate": p("ca.pem"),
-            "listen_private_key": p("skyfuse.key"),
-            "listen_certificate": p("skyfuse.pem"),
-            "enable_mtls": True,
-        }}},
-        "access_control": {
-            "enabled": True,
-            "default_permission": "deny",
-            "rules": [
-                {"id": "sensor input", "permission": "allow", "flows": ["ingress"],
-                 "messages": ["put"], "key_exprs": ["gps/fix", "camera/odom/sample", "mavros/imu/data"]},
-                {"id": "our subscriptions", "permission": "allow", "flows": ["egress"],
-                 "messages": ["declare_subscriber"], "key_exprs": ["**"]},
-            ],
-            "subjects": [{"id": "bridge", "cert_common_names": ["sensor-bridge"]}],
-            "policies": [{"rules": ["sensor input", "our subscriptions"], "subjects": ["bridge"]}],
-        },
-    }
+    with open(os.path.join(HERE, "..", "..", "config", "zenoh-secure.json5")) as f:
+        text = f.read()
+    for k, v in {"@HOST@": "127.0.0.1", "@PORT@": str(port), "@CERTS@": d,
+                 "@BRIDGE_CN@": "sensor-bridge"}.items():
+        text = text.replace(k, v)
     with open(p("skyfuse-zenoh.json5"), "w") as f:
-        json.dump(conf, f, indent=1)
+        f.write(text)
     print(json.dumps({"config": p("skyfuse-zenoh.json5")}))
 
 
@@ -107,6 +91,8 @@ def publish(d, port, who, seconds):
     linked = len(list(session.info.peers_zid()))
     ts = get_typestore(Stores.ROS2_HUMBLE)
     t = ts.types
+    health = []
+    session.declare_subscriber("skyfuse/vehicle1/health", lambda s: health.append(1))
     pub = session.declare_publisher("gps/fix")
     n = 0
     start = time.time()
@@ -123,7 +109,7 @@ def publish(d, port, who, seconds):
         n += 1
         time.sleep(0.1)
     session.close()
-    print(json.dumps({"who": who, "opened": True, "linked_peers": linked, "put": n}))
+    print(json.dumps({"who": who, "opened": True, "linked_peers": linked, "put": n, "health": len(health)}))
 
 
 if __name__ == "__main__":
