@@ -238,9 +238,7 @@ fn mcap_seeds() -> Vec<Vec<u8>> {
             .schema(Schema::new(
                 "sensor_msgs/msg/Imu",
                 "ros2msg",
-                skyfuse::record::ros2msg::definition(RosType::Imu)
-                    .as_bytes()
-                    .to_vec(),
+                skyfuse::record::ros2msg::definition(RosType::Imu).into_bytes(),
             ))
             .add_metadata(skyfuse::record::META_INPUT, "imu")
             .build_raw();

@@ -253,6 +253,14 @@ fn a_serial_link_absent_at_start_unplugged_and_plugged_back_carries_vpe() {
     assert!(l["sent"].as_u64().unwrap_or(0) >= 120, "{l}");
 }
 
+/// tests/py/flood.py on gps/fix for 5 s, with `extra` arguments; its report.
+fn flood_gps(svc: &Service, extra: &[&str]) -> serde_json::Value {
+    let endpoint = svc.zenoh_endpoint();
+    let mut args = vec!["--connect", &endpoint, "--key", "gps/fix", "--seconds", "5"];
+    args.extend_from_slice(extra);
+    json(&run_py("flood.py", &args))
+}
+
 #[test]
 fn one_input_flooded_is_shed_and_the_others_lose_nothing() {
     // A publisher floods gps/fix (10 Hz configured) as fast as Python can put (tens of
@@ -267,17 +275,7 @@ fn one_input_flooded_is_shed_and_the_others_lose_nothing() {
             &["--port", &udp.to_string(), "--seconds", "8"],
         )
     });
-    let flood = json(&run_py(
-        "flood.py",
-        &[
-            "--connect",
-            &svc.zenoh_endpoint(),
-            "--key",
-            "gps/fix",
-            "--seconds",
-            "5",
-        ],
-    ));
+    let flood = flood_gps(&svc, &[]);
     let out = json(&listener.join().expect("listener"));
     let s = svc.get_json("/api/v1/status");
     println!("flood: {flood}; gps: {}", sensor(&s, "gps"));
@@ -319,19 +317,7 @@ fn a_flood_on_a_clock_a_day_behind_is_shed_and_the_real_gps_recovers_at_once() {
     // valid, and within seconds of the flood ending the real GPS is accepted and ok.
     let (svc, _udp) = demo_with_mavlink_udp();
     svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
-    let flood = json(&run_py(
-        "flood.py",
-        &[
-            "--connect",
-            &svc.zenoh_endpoint(),
-            "--key",
-            "gps/fix",
-            "--seconds",
-            "5",
-            "--clock-jump",
-            "-86400",
-        ],
-    ));
+    let flood = flood_gps(&svc, &["--clock-jump", "-86400"]);
     let during = svc.get_json("/api/v1/status");
     assert!(flood["put"].as_u64().unwrap_or(0) > 2_000, "{flood}");
     assert_eq!(

@@ -68,16 +68,11 @@ fn live_difference(stdout: &str) -> (usize, f64, f64) {
 }
 
 fn tum_positions(file: &Path) -> Vec<(f64, [f64; 3])> {
-    std::fs::read_to_string(file)
-        .unwrap_or_else(|e| panic!("{}: {e}", file.display()))
-        .lines()
-        .filter_map(|l| {
-            let v: Vec<f64> = l
-                .split_whitespace()
-                .filter_map(|w| w.parse().ok())
-                .collect();
-            (v.len() >= 4).then(|| (v[0], [v[1], v[2], v[3]]))
-        })
+    let tr = skyfuse::eval::Trajectory::read_tum(file)
+        .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+    tr.t.iter()
+        .zip(&tr.p)
+        .map(|(&t, p)| (t, [p.x, p.y, p.z]))
         .collect()
 }
 

@@ -379,38 +379,24 @@ fn compare_with_live(
     live: &[(i64, [f64; 3], bool)],
     t0_us: i64,
 ) -> Result<(usize, f64, f64), String> {
-    let text =
-        std::fs::read_to_string(fused_tum).map_err(|e| format!("{}: {e}", fused_tum.display()))?;
-    let fused: Vec<(f64, [f64; 3])> = text
-        .lines()
-        .filter_map(|l| {
-            let v: Vec<f64> = l
-                .split_whitespace()
-                .filter_map(|w| w.parse().ok())
-                .collect();
-            (v.len() >= 4).then(|| (v[0], [v[1], v[2], v[3]]))
-        })
-        .collect();
+    let fused = crate::eval::Trajectory::read_tum(fused_tum).map_err(|e| e.to_string())?;
     let (mut n, mut sum, mut max) = (0usize, 0.0f64, 0.0f64);
     for (t_us, p, valid) in live {
         if !valid {
             continue;
         }
         let t = (t_us - t0_us) as f64 * 1e-6;
-        let i = fused.partition_point(|(ft, _)| *ft < t);
+        let i = fused.t.partition_point(|ft| *ft < t);
         let best = [i.checked_sub(1), Some(i)]
             .into_iter()
             .flatten()
-            .filter_map(|j| fused.get(j))
-            .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()));
-        if let Some((ft, q)) = best {
-            if (ft - t).abs() <= 0.01 {
-                let d =
-                    ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
-                n += 1;
-                sum += d * d;
-                max = max.max(d);
-            }
+            .filter(|&j| j < fused.t.len())
+            .min_by(|&a, &b| (fused.t[a] - t).abs().total_cmp(&(fused.t[b] - t).abs()));
+        if let Some(j) = best.filter(|&j| (fused.t[j] - t).abs() <= 0.01) {
+            let d = (fused.p[j] - nalgebra::Vector3::from(*p)).norm();
+            n += 1;
+            sum += d * d;
+            max = max.max(d);
         }
     }
     Ok((
@@ -424,22 +410,17 @@ fn compare_with_live(
     ))
 }
 
+/// The valid live poses as TUM (positions; orientation identity), time from `t0_us`.
 fn write_live_tum(
     file: &std::path::Path,
     live: &[(i64, [f64; 3], bool)],
     t0_us: i64,
 ) -> Result<(), String> {
-    let mut text = String::new();
-    for (t_us, p, valid) in live {
-        if *valid {
-            text.push_str(&format!(
-                "{:.6} {:.9} {:.9} {:.9} 0 0 0 1\n",
-                (t_us - t0_us) as f64 * 1e-6,
-                p[0],
-                p[1],
-                p[2]
-            ));
-        }
+    let mut tr = crate::eval::Trajectory::default();
+    for (t_us, p, _) in live.iter().filter(|l| l.2) {
+        tr.t.push((t_us - t0_us) as f64 * 1e-6);
+        tr.p.push(nalgebra::Vector3::from(*p));
+        tr.q.push(nalgebra::UnitQuaternion::identity());
     }
-    std::fs::write(file, text).map_err(|e| format!("{}: {e}", file.display()))
+    tr.write_tum(file).map_err(|e| e.to_string())
 }

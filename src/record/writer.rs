@@ -548,7 +548,7 @@ impl Writer {
                     builder = builder.schema(foxglove::Schema::new(
                         t.ros2_name(),
                         "ros2msg",
-                        super::ros2msg::definition(t).as_bytes().to_vec(),
+                        super::ros2msg::definition(t).into_bytes(),
                     ));
                 }
             }
@@ -574,7 +574,7 @@ impl Writer {
                 .schema(foxglove::Schema::new(
                     t.ros2_name(),
                     "ros2msg",
-                    super::ros2msg::definition(t).as_bytes().to_vec(),
+                    super::ros2msg::definition(t).into_bytes(),
                 ))
                 .add_metadata(super::META_OUTPUT, "ros2"),
             "cdr",

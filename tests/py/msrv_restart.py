@@ -20,27 +20,14 @@ import subprocess
 import tempfile
 import threading
 import time
-import urllib.request
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 import sys  # noqa: E402
 
 sys.path.insert(0, HERE)
 from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
+from probe import free_port, status  # noqa: E402
 from zenoh_peer import open_peer  # noqa: E402
-
-
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    p = s.getsockname()[1]
-    s.close()
-    return p
-
-
-def status(port):
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/v1/status", timeout=5) as r:
-        return json.loads(r.read())
 
 
 def sensor(st, sid):

@@ -18,32 +18,17 @@ import subprocess
 import sys
 import threading
 import time
-import urllib.request
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from probe import cpu_s, free_port, status  # noqa: E402
 from ws_clients import connect, recv_frame, send_text  # noqa: E402
 
 
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    p = s.getsockname()[1]
-    s.close()
-    return p
-
-
-def status(port):
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/v1/status", timeout=5) as r:
-        return json.loads(r.read())
-
-
 def proc(pid):
-    with open(f"/proc/{pid}/stat") as f:
-        fields = f.read().rsplit(")", 1)[1].split()
-    cpu_s = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    cpu = cpu_s(f"/proc/{pid}/stat")
     with open(f"/proc/{pid}/status") as f:
         rss_kib = next(int(l.split()[1]) for l in f if l.startswith("VmRSS:"))
-    return cpu_s, rss_kib
+    return cpu, rss_kib
 
 
 def reader(port, counts, i, stop):
