@@ -208,7 +208,7 @@ fn targets() -> Vec<Target> {
 /// Small recordings as the recorder writes them (the Foxglove SDK's MCAP writer): a CDR
 /// channel with its ros2msg schema and a JSON one, chunked with zstd or lz4, or not.
 fn mcap_seeds() -> Vec<Vec<u8>> {
-    use foxglove::{McapCompression, McapWriteOptions, PartialMetadata, Schema};
+    use foxglove::{McapCompression, McapWriteOptions, PartialMetadata};
     let cdr: Vec<Vec<u8>> = ros_seeds(true)
         .into_iter()
         .map(|(_, b)| b)
@@ -235,11 +235,7 @@ fn mcap_seeds() -> Vec<Vec<u8>> {
         let imu = ctx
             .channel_builder("mavros/imu/data")
             .message_encoding("cdr")
-            .schema(Schema::new(
-                "sensor_msgs/msg/Imu",
-                "ros2msg",
-                skyfuse::record::ros2msg::definition(RosType::Imu).into_bytes(),
-            ))
+            .schema(skyfuse::record::ros2msg::schema(RosType::Imu))
             .add_metadata(skyfuse::record::META_INPUT, "imu")
             .build_raw();
         let json = ctx

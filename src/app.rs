@@ -77,11 +77,9 @@ pub async fn run_with(
 ) -> Result<(), RunError> {
     let config = Arc::new(config);
     // HTTPS: a bad certificate or key fails the start, naming the file.
-    let tls = match (&config.http.tls_cert, &config.http.tls_key) {
-        (Some(cert), Some(key)) if !cert.is_empty() && !key.is_empty() => {
-            Some(crate::http::tls::server_config(cert, key)?)
-        }
-        _ => None,
+    let tls = match config.http.tls() {
+        Some((cert, key)) => Some(crate::http::tls::server_config(cert, key)?),
+        None => None,
     };
     let ingest = Arc::new(Ingest::new(&config));
     let (tx, rx) = mpsc::channel::<Sample>(config.ingest.channel_capacity);

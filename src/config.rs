@@ -115,6 +115,31 @@ pub struct FoxgloveConfig {
     pub bind: Option<String>,
 }
 
+impl RecordConfig {
+    /// The recording directory, if recording is on.
+    pub fn dir(&self) -> Option<&str> {
+        non_empty(&self.dir)
+    }
+}
+
+impl FoxgloveConfig {
+    /// The server's address, if the live view is on.
+    pub fn bind(&self) -> Option<&str> {
+        non_empty(&self.bind)
+    }
+}
+
+/// An optional setting that is set: present and not empty.
+fn non_empty(s: &Option<String>) -> Option<&str> {
+    s.as_deref().filter(|s| !s.is_empty())
+}
+
+/// `HOST:PORT` → (HOST as written, PORT); `[::1]:8765` keeps its brackets.
+pub fn split_host_port(addr: &str) -> Option<(&str, u16)> {
+    let (host, port) = addr.rsplit_once(':')?;
+    Some((host, port.parse().ok()?))
+}
+
 /// Where `skyfuse demo` serves Foxglove (Foxglove's own default port, on loopback).
 pub const DEMO_FOXGLOVE_BIND: &str = "127.0.0.1:8765";
 
@@ -172,6 +197,13 @@ pub struct HttpConfig {
     /// neither (plain HTTP).
     pub tls_cert: Option<String>,
     pub tls_key: Option<String>,
+}
+
+impl HttpConfig {
+    /// (certificate, key) when HTTPS is configured.
+    pub fn tls(&self) -> Option<(&str, &str)> {
+        Some((non_empty(&self.tls_cert)?, non_empty(&self.tls_key)?))
+    }
 }
 
 impl Default for HttpConfig {
@@ -492,8 +524,7 @@ impl Config {
 
     /// Cross-field checks serde cannot express.
     pub fn validate(&self) -> Result<(), String> {
-        let nonempty = |s: &Option<String>| s.as_deref().is_some_and(|s| !s.is_empty());
-        if nonempty(&self.http.tls_cert) != nonempty(&self.http.tls_key) {
+        if non_empty(&self.http.tls_cert).is_some() != non_empty(&self.http.tls_key).is_some() {
             return Err("[http] tls_cert and tls_key go together (HTTPS needs both)".into());
         }
         let r = &self.record;
@@ -508,11 +539,8 @@ impl Config {
                 ));
             }
         }
-        if let Some(b) = self.foxglove.bind.as_deref().filter(|b| !b.is_empty()) {
-            if b.rsplit_once(':')
-                .and_then(|(_, p)| p.parse::<u16>().ok())
-                .is_none()
-            {
+        if let Some(b) = self.foxglove.bind() {
+            if split_host_port(b).is_none() {
                 return Err(format!("[foxglove] bind {b:?} is not HOST:PORT"));
             }
         }

@@ -57,7 +57,6 @@ pub enum TapItem {
 pub struct TapStats {
     /// Items that found the queue full (never recorded).
     pub dropped: AtomicU64,
-    pub queued: AtomicU64,
     /// Messages logged to the channels.
     pub logged: AtomicU64,
     /// Bytes of finished files plus the current file's size on disk.
@@ -66,8 +65,6 @@ pub struct TapStats {
     /// The file being written, and the last error (a full disk, an unwritable dir).
     pub file: std::sync::Mutex<Option<String>>,
     pub error: std::sync::Mutex<Option<String>>,
-    /// Clients of the Foxglove WebSocket server.
-    pub foxglove_clients: AtomicU64,
 }
 
 /// The taps' handle: cheap to clone, a no-op when neither recording nor live view is on.
@@ -104,13 +101,8 @@ impl Tap {
 
     fn send(&self, item: TapItem) {
         if let Some((tx, stats)) = &self.inner {
-            match tx.try_send(item) {
-                Ok(()) => {
-                    stats.queued.fetch_add(1, Relaxed);
-                }
-                Err(_) => {
-                    stats.dropped.fetch_add(1, Relaxed);
-                }
+            if tx.try_send(item).is_err() {
+                stats.dropped.fetch_add(1, Relaxed);
             }
         }
     }

@@ -276,8 +276,7 @@ fn healthcheck(
     // With HTTPS configured, ask over TLS, trusting exactly the configured certificate.
     let tls_cert = config
         .ok()
-        .and_then(|c| c.http.tls_cert)
-        .filter(|c| !c.is_empty());
+        .and_then(|c| c.http.tls().map(|(cert, _)| cert.to_string()));
     let addr = probe_addr(&bind)?;
     let timeout = std::time::Duration::from_secs_f64(timeout_s.clamp(0.1, 60.0));
     let stream = std::net::TcpStream::connect_timeout(&addr, timeout)

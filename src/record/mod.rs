@@ -44,6 +44,26 @@ pub const TOPIC_INPUT_PREFIX: &str = "/skyfuse/input/";
 /// Message encoding of raw MAVLink v2 frames (no schema: the frame names its message).
 pub const MAVLINK_ENCODING: &str = "mavlink2";
 
+/// The MCAP message encoding of an input format's payloads (what the recorder writes
+/// and what replay routes back to inputs of that format).
+pub fn channel_encoding(format: crate::codec::Format) -> &'static str {
+    use crate::codec::Format;
+    match format {
+        Format::Ros2 => "cdr",
+        Format::Ros1 => "ros1",
+        Format::MavlinkJson | Format::Json => "json",
+        Format::MavlinkRaw => MAVLINK_ENCODING,
+    }
+}
+
+/// A name as it may stand in a file name or an input id: ASCII letters and digits, the
+/// rest `_` (`camera/odom/sample` → `camera_odom_sample`).
+pub fn name_safe(s: &str) -> String {
+    s.chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect()
+}
+
 /// The recorder's part of `/api/v1/status`.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct RecorderStatus {

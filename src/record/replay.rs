@@ -53,16 +53,6 @@ fn is_output(topic: &str) -> bool {
     topic.starts_with("/skyfuse/") || topic == super::TOPIC_TF
 }
 
-/// Whether an input of `format` reads a channel of `encoding`.
-fn format_reads(format: Format, encoding: &str) -> bool {
-    match format {
-        Format::Ros2 => encoding == "cdr",
-        Format::Ros1 => encoding == "ros1",
-        Format::MavlinkJson | Format::Json => encoding == "json",
-        Format::MavlinkRaw => encoding == super::MAVLINK_ENCODING,
-    }
-}
-
 fn key_matches(input: &InputConfig, topic: &str) -> bool {
     let key = topic.trim_start_matches('/');
     let Ok(k) = zenoh::key_expr::KeyExpr::try_from(key) else {
@@ -90,13 +80,8 @@ fn input_for_topic(
         .first()
         .map(|d| d.data.kind())
         .ok_or("its first message holds nothing skyfuse uses")?;
-    let id: String = topic
-        .trim_matches('/')
-        .chars()
-        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-        .collect();
     Ok(InputConfig {
-        id,
+        id: super::name_safe(topic.trim_matches('/')),
         kind,
         key: topic.trim_start_matches('/').to_string(),
         format: Format::Ros2,
@@ -149,7 +134,9 @@ pub fn samples(config: &Config, log: &McapLog) -> McapReplay {
             continue;
         }
         let usable = |i: &InputConfig| {
-            i.enabled && format_reads(i.format, &ch.message_encoding) && key_matches(i, &ch.topic)
+            i.enabled
+                && super::channel_encoding(i.format) == ch.message_encoding
+                && key_matches(i, &ch.topic)
         };
         let named = ch
             .metadata

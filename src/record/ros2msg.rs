@@ -206,6 +206,11 @@ geometry_msgs/Point point
     }
 }
 
+/// The MCAP/Foxglove schema of `t`'s CDR: its ROS 2 name and full definition.
+pub fn schema(t: RosType) -> foxglove::Schema {
+    foxglove::Schema::new(t.ros2_name(), "ros2msg", definition(t).into_bytes())
+}
+
 /// The full definition of `t`, dependencies included.
 pub fn definition(t: RosType) -> String {
     let (own, used) = parts(t);

@@ -43,10 +43,9 @@ pub struct Recorder {
 impl Recorder {
     pub fn status(&self) -> RecorderStatus {
         let s = &self.stats;
-        if let Some(server) = crate::sync::lock(&self.server).as_ref() {
-            s.foxglove_clients
-                .store(server.client_count() as u64, Relaxed);
-        }
+        let foxglove_clients = crate::sync::lock(&self.server)
+            .as_ref()
+            .map_or(0, |server| server.client_count() as u64);
         RecorderStatus {
             recording: self.dir.is_some(),
             dir: self.dir.clone(),
@@ -57,7 +56,7 @@ impl Recorder {
             dropped: s.dropped.load(Relaxed),
             error: crate::sync::lock(&s.error).clone(),
             foxglove: self.foxglove.clone(),
-            foxglove_clients: s.foxglove_clients.load(Relaxed),
+            foxglove_clients,
         }
     }
 
@@ -86,22 +85,20 @@ pub async fn spawn(
     ingest: Arc<Ingest>,
     any_port_if_taken: bool,
 ) -> Result<(Tap, Option<Recorder>), RecordError> {
-    let dir = record.dir.clone().filter(|d| !d.is_empty());
-    let bind = foxglove.bind.clone().filter(|b| !b.is_empty());
+    let dir = record.dir().map(str::to_string);
+    let bind = foxglove.bind();
     if dir.is_none() && bind.is_none() {
         return Ok((Tap::off(), None));
     }
     let ctx = Context::new();
-    let server = match &bind {
+    let (server, foxglove_addr) = match bind {
         Some(b) => {
-            let (host, port) = b
-                .rsplit_once(':')
-                .and_then(|(h, p)| Some((h.trim_matches(['[', ']']), p.parse::<u16>().ok()?)))
-                .ok_or_else(|| RecordError::Bind { bind: b.clone() })?;
+            let (host, port) = crate::config::split_host_port(b)
+                .ok_or_else(|| RecordError::Bind { bind: b.into() })?;
             let start = |port: u16| {
                 ctx.websocket_server()
                     .name(format!("skyfuse {vehicle}"))
-                    .bind(host, port)
+                    .bind(host.trim_matches(['[', ']']), port)
                     .start()
             };
             let handle = match start(port).await {
@@ -112,21 +109,15 @@ pub async fn spawn(
                 other => other,
             }
             .map_err(|e| RecordError::Server {
-                bind: b.clone(),
+                bind: b.into(),
                 message: e.to_string(),
             })?;
-            tracing::info!(port = handle.port(), "Foxglove WebSocket server on {host}");
-            Some(handle)
+            // The port it got (the configured one, or any when that was 0 or taken).
+            let addr = format!("{host}:{}", handle.port());
+            tracing::info!("Foxglove WebSocket server on {addr}");
+            (Some(handle), Some(addr))
         }
-        None => None,
-    };
-    let foxglove_addr = match (&bind, &server) {
-        (Some(b), Some(s)) => Some(format!(
-            "{}:{}",
-            b.rsplit_once(':').map(|(h, _)| h).unwrap_or(b),
-            s.port()
-        )),
-        _ => None,
+        None => (None, None),
     };
     let rotation = match &dir {
         Some(d) => {
@@ -180,10 +171,7 @@ impl Rotation {
     fn new(dir: PathBuf, vehicle: &str, cfg: &RecordConfig) -> Self {
         Self {
             dir,
-            vehicle: vehicle
-                .chars()
-                .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-                .collect(),
+            vehicle: super::name_safe(vehicle),
             max_bytes: (cfg.max_file_mb * 1024.0 * 1024.0) as u64,
             max_age: Duration::from_secs_f64(cfg.max_file_s.max(1.0)),
             chunk_bytes: (cfg.chunk_kb * 1024.0) as u64,
@@ -231,9 +219,10 @@ impl Rotation {
         Ok(())
     }
 
-    fn due(&self) -> bool {
-        self.current.as_ref().is_some_and(|(path, opened, _)| {
-            opened.elapsed() >= self.max_age || file_size(path) >= self.max_bytes
+    /// Whether the current file, of `size` bytes, is to be closed for a new one.
+    fn due(&self, size: u64) -> bool {
+        self.current.as_ref().is_some_and(|(_, opened, _)| {
+            opened.elapsed() >= self.max_age || size >= self.max_bytes
         })
     }
 
@@ -280,7 +269,8 @@ struct Writer {
     stats: Arc<TapStats>,
     rotation: Option<Rotation>,
     frame_id: String,
-    inputs: HashMap<(usize, String), Arc<RawChannel>>,
+    /// Per input index, per key (a key expression input can see many keys).
+    inputs: HashMap<usize, HashMap<String, Arc<RawChannel>>>,
     ros2_out: HashMap<String, Arc<RawChannel>>,
     decoded: HashMap<usize, Arc<RawChannel>>,
     pose: Channel<PoseInFrame>,
@@ -370,7 +360,8 @@ impl Writer {
 
     fn housekeeping(&mut self) {
         let Some(r) = &mut self.rotation else { return };
-        if r.due() {
+        let mut current = r.current_bytes();
+        if r.due(current) {
             let result = r.close().and_then(|()| {
                 r.open(&self.ctx)
                     .map_err(|e| e.to_string())
@@ -388,10 +379,9 @@ impl Writer {
                     *crate::sync::lock(&self.stats.file) = None;
                 }
             }
+            current = r.current_bytes();
         }
-        self.stats
-            .bytes
-            .store(r.finished_bytes + r.current_bytes(), Relaxed);
+        self.stats.bytes.store(r.finished_bytes + current, Relaxed);
     }
 
     fn log(&mut self, item: TapItem) {
@@ -519,7 +509,7 @@ impl Writer {
     /// `ros2msg` schema (Foxglove and rosbag2 readers decode it), JSON as JSON, MAVLink
     /// frames as `mavlink2`, ROS 1 as `ros1`.
     fn input_channel(&mut self, input: usize, key: &str) -> Arc<RawChannel> {
-        if let Some(c) = self.inputs.get(&(input, key.to_string())) {
+        if let Some(c) = self.inputs.get(&input).and_then(|by_key| by_key.get(key)) {
             return c.clone();
         }
         let mut metadata = BTreeMap::new();
@@ -535,21 +525,11 @@ impl Writer {
                     .and_then(|a| RosType::from_name(&a)),
                 _ => cfg.ros_type,
             };
-            let encoding = match cfg.format {
-                Format::Ros2 => "cdr",
-                Format::Ros1 => "ros1",
-                Format::MavlinkJson | Format::Json => "json",
-                Format::MavlinkRaw => super::MAVLINK_ENCODING,
-            };
-            builder = builder.message_encoding(encoding);
+            builder = builder.message_encoding(super::channel_encoding(cfg.format));
             if let Some(t) = ros_type {
                 metadata.insert(super::META_ROS_TYPE.to_string(), t.ros2_name().to_string());
                 if cfg.format == Format::Ros2 {
-                    builder = builder.schema(foxglove::Schema::new(
-                        t.ros2_name(),
-                        "ros2msg",
-                        super::ros2msg::definition(t).into_bytes(),
-                    ));
+                    builder = builder.schema(super::ros2msg::schema(t));
                 }
             }
         }
@@ -559,7 +539,9 @@ impl Writer {
             Err(_) => raw_channel(self.ctx.channel_builder(key), "application/octet-stream"),
         };
         self.inputs
-            .insert((input, key.to_string()), channel.clone());
+            .entry(input)
+            .or_default()
+            .insert(key.to_string(), channel.clone());
         channel
     }
 
@@ -571,11 +553,7 @@ impl Writer {
         let channel = raw_channel(
             self.ctx
                 .channel_builder(key)
-                .schema(foxglove::Schema::new(
-                    t.ros2_name(),
-                    "ros2msg",
-                    super::ros2msg::definition(t).into_bytes(),
-                ))
+                .schema(super::ros2msg::schema(t))
                 .add_metadata(super::META_OUTPUT, "ros2"),
             "cdr",
         );
