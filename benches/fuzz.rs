@@ -13,12 +13,17 @@
 //! `cargo bench --bench fuzz -- --iters 10000000` (per target; BENCHMARKS.md has the
 //! figures); `cargo bench --bench fuzz -- mavlink_raw` runs one target. Under
 //! `cargo test` (no `--bench`) every target runs 20 000 inputs and any panic fails.
-//! Not coverage-guided: cargo-fuzz needs a nightly toolchain, which this project's
-//! machines do not have.
+//! The decoders are `fuzz/targets.rs`, shared with the coverage-guided libFuzzer targets
+//! in `fuzz/`; `cargo bench --bench fuzz -- --write-seeds DIR` writes these seeds as
+//! their starting corpus (DIR/<target>/).
 
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
 use skyfuse::codec::{self, Format, RosType};
+
+#[path = "../fuzz/targets.rs"]
+mod decoders;
+use decoders::Target as Decoder;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::time::Instant;
 
@@ -44,13 +49,11 @@ fn read_jsonl(name: &str) -> Vec<serde_json::Value> {
         .collect()
 }
 
-type Decode = Box<dyn Fn(&[u8]) -> bool>;
-
 /// One fuzz target: its seeds and what it decodes (true: accepted).
+/// A decoder and the real seeds its mutants start from.
 struct Target {
-    name: &'static str,
+    decoder: Decoder,
     seeds: Vec<Vec<u8>>,
-    decode: Decode,
 }
 
 fn ros_seeds(ros2: bool) -> Vec<(RosType, Vec<u8>)> {
@@ -83,32 +86,16 @@ fn ros_seeds(ros2: bool) -> Vec<(RosType, Vec<u8>)> {
 }
 
 fn targets() -> Vec<Target> {
-    let mut t = vec![];
-    for ros2 in [true, false] {
-        let seeds = ros_seeds(ros2);
-        let types: Vec<RosType> = RosType::ALL.to_vec();
-        let format = if ros2 { Format::Ros2 } else { Format::Ros1 };
-        // The first byte of the input picks the type the bytes are decoded as, so every
-        // decoder sees every seed's mutations too.
-        t.push(Target {
-            name: if ros2 { "ros2_cdr" } else { "ros1" },
-            seeds: seeds
-                .iter()
-                .map(|(ty, b)| {
-                    let i = types.iter().position(|x| x == ty).unwrap_or(0) as u8;
-                    std::iter::once(i).chain(b.iter().copied()).collect()
-                })
-                .collect(),
-            decode: Box::new(move |b: &[u8]| {
-                let Some((&i, rest)) = b.split_first() else {
-                    return false;
-                };
-                let ty = types[usize::from(i) % types.len()];
-                let mut out = vec![];
-                codec::decode(format, Some(ty), rest, &mut out).is_ok()
-            }),
-        });
-    }
+    let ros = |ros2: bool| -> Vec<Vec<u8>> {
+        ros_seeds(ros2)
+            .iter()
+            .map(|(ty, b)| {
+                std::iter::once(Decoder::ros_type_byte(*ty))
+                    .chain(b.iter().copied())
+                    .collect()
+            })
+            .collect()
+    };
     let mav_json: Vec<Vec<u8>> = read_jsonl("bridges/mavlink-server-samples.jsonl")
         .iter()
         .filter_map(|s| s["payload"].as_str().map(|p| p.as_bytes().to_vec()))
@@ -120,14 +107,6 @@ fn targets() -> Vec<Target> {
                 .filter_map(|v| v["json"].as_str().map(|p| p.as_bytes().to_vec())),
         )
         .collect();
-    t.push(Target {
-        name: "mavlink_json",
-        seeds: mav_json,
-        decode: Box::new(|b: &[u8]| {
-            let mut out = vec![];
-            codec::decode(Format::MavlinkJson, None, b, &mut out).is_ok()
-        }),
-    });
     let frames: Vec<Vec<u8>> = read_json("mavlink_vectors.json")["vectors"]
         .as_array()
         .into_iter()
@@ -140,22 +119,6 @@ fn targets() -> Vec<Target> {
     for w in frames.windows(3) {
         raw.push(w.concat());
     }
-    t.push(Target {
-        name: "mavlink_raw",
-        seeds: raw,
-        decode: Box::new(|b: &[u8]| {
-            let mut out = vec![];
-            codec::decode(Format::MavlinkRaw, None, b, &mut out).is_ok()
-        }),
-    });
-    t.push(Target {
-        name: "skyfuse_json",
-        seeds: skyfuse_json_seeds(),
-        decode: Box::new(|b: &[u8]| {
-            let mut out = vec![];
-            codec::decode(Format::Json, None, b, &mut out).is_ok()
-        }),
-    });
     let config =
         std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/default.toml"))
             .unwrap_or_default();
@@ -167,42 +130,32 @@ fn targets() -> Vec<Target> {
     .iter()
     .filter_map(|n| std::fs::read(format!("{DATA}/sitl/{n}")).ok())
     .collect();
-    t.push(Target {
-        name: "config_toml",
-        seeds: std::iter::once(config.into_bytes()).chain(sitl).collect(),
-        decode: Box::new(|b: &[u8]| {
-            std::str::from_utf8(b)
-                .ok()
-                .is_some_and(|s| skyfuse::config::Config::from_toml_str(s, "fuzz").is_ok())
-        }),
-    });
-    t.push(Target {
-        name: "ws_client",
-        seeds: vec![
-            br#"{"type": "subscribe", "max_rate_hz": 5}"#.to_vec(),
-            br#"{"type":"subscribe","max_rate_hz":50.0}"#.to_vec(),
-        ],
-        decode: Box::new(|b: &[u8]| {
-            serde_json::from_slice::<skyfuse::protocol::ClientMessage>(b).is_ok()
-        }),
-    });
-    t.push(Target {
-        name: "mcap",
-        seeds: mcap_seeds(),
-        decode: Box::new(|b: &[u8]| skyfuse::replay::mcap::parse(b, &mut |_, _| {}).is_ok()),
-    });
-    t.push(Target {
-        name: "control_body",
-        seeds: vec![
-            br#"{"sensor": "gps", "fault": "stop", "duration_s": 10}"#.to_vec(),
-            br#"{"sensor":"flow","fault":"dark-floor"}"#.to_vec(),
-            br#"{"sensor":"t265","fault":"clear"}"#.to_vec(),
-        ],
-        decode: Box::new(|b: &[u8]| {
-            serde_json::from_slice::<skyfuse::sim::faults::FaultRequest>(b).is_ok()
-        }),
-    });
-    t
+    Decoder::ALL
+        .into_iter()
+        .map(|decoder| {
+            let seeds = match decoder {
+                Decoder::Ros2Cdr => ros(true),
+                Decoder::Ros1 => ros(false),
+                Decoder::MavlinkJson => mav_json.clone(),
+                Decoder::MavlinkRaw => raw.clone(),
+                Decoder::SkyfuseJson => skyfuse_json_seeds(),
+                Decoder::ConfigToml => std::iter::once(config.clone().into_bytes())
+                    .chain(sitl.iter().cloned())
+                    .collect(),
+                Decoder::WsClient => vec![
+                    br#"{"type": "subscribe", "max_rate_hz": 5}"#.to_vec(),
+                    br#"{"type":"subscribe","max_rate_hz":50.0}"#.to_vec(),
+                ],
+                Decoder::Mcap => mcap_seeds(),
+                Decoder::ControlBody => vec![
+                    br#"{"sensor": "gps", "fault": "stop", "duration_s": 10}"#.to_vec(),
+                    br#"{"sensor":"flow","fault":"dark-floor"}"#.to_vec(),
+                    br#"{"sensor":"t265","fault":"clear"}"#.to_vec(),
+                ],
+            };
+            Target { decoder, seeds }
+        })
+        .collect()
 }
 
 /// Small recordings as the recorder writes them (the Foxglove SDK's MCAP writer): a CDR
@@ -374,13 +327,13 @@ fn run(target: &Target, iters: u64, seed: u64) -> Outcome {
     // Warm up before measuring memory: the allocator's first arenas are not growth.
     for _ in 0..iters.min(10_000) {
         mutate(&mut rng, &target.seeds, &mut buf);
-        let _ = catch_unwind(AssertUnwindSafe(|| (target.decode)(&buf)));
+        let _ = catch_unwind(AssertUnwindSafe(|| target.decoder.decode(&buf)));
     }
     let rss_before_kib = rss_kib();
     let start = Instant::now();
     for _ in 0..iters {
         mutate(&mut rng, &target.seeds, &mut buf);
-        match catch_unwind(AssertUnwindSafe(|| (target.decode)(&buf))) {
+        match catch_unwind(AssertUnwindSafe(|| target.decoder.decode(&buf))) {
             Ok(true) => accepted += 1,
             Ok(false) => {}
             Err(_) => {
@@ -400,6 +353,28 @@ fn run(target: &Target, iters: u64, seed: u64) -> Outcome {
     }
 }
 
+/// The seeds as a libFuzzer corpus: one file per seed under `dir/<target>/`.
+fn write_seeds(dir: &std::path::Path) {
+    for t in targets() {
+        let sub = dir.join(t.decoder.name());
+        if let Err(e) = std::fs::create_dir_all(&sub) {
+            panic!("cannot create {}: {e}", sub.display());
+        }
+        for (i, seed) in t.seeds.iter().enumerate() {
+            let path = sub.join(format!("seed-{i:03}"));
+            if let Err(e) = std::fs::write(&path, seed) {
+                panic!("cannot write {}: {e}", path.display());
+            }
+        }
+        println!(
+            "{:<14} {:>4} seeds → {}",
+            t.decoder.name(),
+            t.seeds.len(),
+            sub.display()
+        );
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let bench = args.iter().any(|a| a == "--bench");
@@ -408,10 +383,21 @@ fn main() {
         .position(|a| a == "--iters")
         .and_then(|i| args.get(i + 1)?.parse().ok())
         .unwrap_or(if bench { 10_000_000 } else { 20_000 });
+    let value = |flag: &str| {
+        let i = args.iter().position(|a| a == flag)?;
+        args.get(i + 1)
+    };
+    if let Some(dir) = value("--write-seeds") {
+        write_seeds(std::path::Path::new(dir));
+        return;
+    }
+    // The one positional argument: a target name (not a flag, nor a flag's value).
     let only = args
         .iter()
+        .enumerate()
         .skip(1)
-        .find(|a| !a.starts_with('-') && a.parse::<u64>().is_err());
+        .find(|(i, a)| !a.starts_with('-') && !matches!(args[i - 1].as_str(), "--iters"))
+        .map(|(_, a)| a);
     // Panics are caught and counted; their messages would flood the output.
     let quiet = std::panic::take_hook();
     std::panic::set_hook(Box::new(|_| {}));
@@ -420,14 +406,14 @@ fn main() {
     );
     let mut failed = vec![];
     for t in targets() {
-        if only.is_some_and(|o| o != t.name) {
+        if only.is_some_and(|o| o != t.decoder.name()) {
             continue;
         }
-        assert!(!t.seeds.is_empty(), "{}: no seeds read", t.name);
+        assert!(!t.seeds.is_empty(), "{}: no seeds read", t.decoder.name());
         let o = run(&t, iters, 0x5eed);
         println!(
             "{:<14} {:>6} {:>11} {:>10} {:>7} {:>10.0}   {} → {}",
-            t.name,
+            t.decoder.name(),
             t.seeds.len(),
             o.inputs,
             o.accepted,
@@ -439,7 +425,9 @@ fn main() {
         if let Some(p) = o.first_panic {
             failed.push(format!(
                 "{}: {} panics, first on {:02x?}",
-                t.name, o.panics, p
+                t.decoder.name(),
+                o.panics,
+                p
             ));
         }
         // Every target must accept some of its mutants (else the seeds or the harness are
@@ -447,7 +435,9 @@ fn main() {
         if o.accepted == 0 || o.accepted == o.inputs {
             failed.push(format!(
                 "{}: accepted {} of {}",
-                t.name, o.accepted, o.inputs
+                t.decoder.name(),
+                o.accepted,
+                o.inputs
             ));
         }
     }

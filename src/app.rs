@@ -7,6 +7,7 @@
 use crate::clock::now_us;
 use crate::config::Config;
 use crate::event::Event;
+use crate::fleet::watch::FleetWatch;
 pub use crate::http::AppState;
 use crate::hub::Hub;
 use crate::ingest::{zenoh_in, Ingest};
@@ -121,6 +122,8 @@ pub async fn run_with(
         (Vec::new(), None)
     };
     let (cmd_tx, cmd_rx) = mpsc::channel(16);
+    let http_addr = listeners.http.local_addr().map_err(RunError::Http)?;
+    let dashboard_url = dashboard_url(&config.http, http_addr);
     let state = Arc::new(AppState {
         config: config.clone(),
         ingest: ingest.clone(),
@@ -141,6 +144,7 @@ pub async fn run_with(
         zenoh_routers: AtomicU64::new(0),
         zenoh_peers: AtomicU64::new(0),
         recorder: recorder.clone(),
+        dashboard_url,
     });
     drop(tx);
     let pipeline_config = pipeline::PipelineConfig {
@@ -205,8 +209,12 @@ pub async fn run_with(
     });
     let status_frames = tokio::spawn(status_frames(state.clone()));
     let zenoh_links = tokio::spawn(watch_zenoh_links(state.clone(), session.clone()));
+    // The fleet view finds this vehicle by its token (and sees it go when we stop).
+    let prefix = config.output.prefix_for(&config.service.vehicle);
+    let alive = declare_alive(&session, &prefix).await;
+    let fleet = FleetWatch::new(session.clone(), config.fleet.clone(), false);
+    let fleet_task = tokio::spawn(fleet.clone().run());
 
-    let http_addr = listeners.http.local_addr().map_err(RunError::Http)?;
     tracing::info!(
         vehicle = %config.service.vehicle,
         zid = %zid,
@@ -216,37 +224,16 @@ pub async fn run_with(
         inputs = config.inputs.iter().filter(|i| i.enabled).count(),
         "skyfuse running"
     );
-    let app = crate::http::router(state.clone());
-    // A small kernel send buffer per connection: a stalled browser then fills its own
-    // bounded queue (and drops, counted) within seconds instead of hiding megabytes
-    // of stale frames in the kernel.
-    let socket_options = |tcp: &tokio::net::TcpStream| {
-        let _ = tcp.set_nodelay(true);
-        let _ = socket2::SockRef::from(tcp).set_send_buffer_size(HTTP_SEND_BUFFER);
-    };
-    // The peer address reaches the handlers (refused controls are limited per address).
-    let app = app.into_make_service_with_connect_info::<std::net::SocketAddr>();
-    use axum::serve::ListenerExt;
-    match tls {
-        Some(tls) => {
-            let https = crate::http::tls::TlsListener::new(listeners.http, tls)
-                .map_err(RunError::Http)?
-                .tap_io(move |s| socket_options(s.get_ref().0));
-            axum::serve(https, app)
-                .with_graceful_shutdown(shutdown)
-                .await
-                .map_err(RunError::Http)?;
-        }
-        None => {
-            let http = listeners.http.tap_io(move |s| socket_options(s));
-            axum::serve(http, app)
-                .with_graceful_shutdown(shutdown)
-                .await
-                .map_err(RunError::Http)?;
-        }
-    }
+    let app = crate::http::router(state.clone()).merge(crate::fleet::watch::routes(fleet));
+    serve_http(listeners.http, tls, app, shutdown).await?;
 
     tracing::info!("shutting down");
+    fleet_task.abort();
+    if let Some(t) = alive {
+        if let Err(e) = t.undeclare().await {
+            tracing::warn!("undeclaring the fleet token: {e}");
+        }
+    }
     // Our ROS topics go away with us.
     for t in ros_tokens {
         if let Err(e) = t.undeclare().await {
@@ -276,6 +263,131 @@ pub async fn run_with(
         let _ = tokio::task::spawn_blocking(move || r.finish()).await;
     }
     state.zenoh_closed.store(true, Relaxed);
+    if let Err(e) = session.close().await {
+        tracing::warn!("closing zenoh session: {e}");
+    }
+    Ok(())
+}
+
+/// Serves `app` on the listener (HTTPS with `tls`) until `shutdown`.
+async fn serve_http(
+    listener: tokio::net::TcpListener,
+    tls: Option<Arc<rustls::ServerConfig>>,
+    app: axum::Router,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), RunError> {
+    // A small kernel send buffer per connection: a stalled browser then fills its own
+    // bounded queue (and drops, counted) within seconds instead of hiding megabytes
+    // of stale frames in the kernel.
+    let socket_options = |tcp: &tokio::net::TcpStream| {
+        let _ = tcp.set_nodelay(true);
+        let _ = socket2::SockRef::from(tcp).set_send_buffer_size(HTTP_SEND_BUFFER);
+    };
+    // The peer address reaches the handlers (refused controls are limited per address).
+    let app = app.into_make_service_with_connect_info::<std::net::SocketAddr>();
+    use axum::serve::ListenerExt;
+    match tls {
+        Some(tls) => {
+            let https = crate::http::tls::TlsListener::new(listener, tls)
+                .map_err(RunError::Http)?
+                .tap_io(move |s| socket_options(s.get_ref().0));
+            axum::serve(https, app)
+                .with_graceful_shutdown(shutdown)
+                .await
+                .map_err(RunError::Http)
+        }
+        None => {
+            let http = listener.tap_io(move |s| socket_options(s));
+            axum::serve(http, app)
+                .with_graceful_shutdown(shutdown)
+                .await
+                .map_err(RunError::Http)
+        }
+    }
+}
+
+/// The liveliness token `<prefix>/alive` the fleet view finds a vehicle by; Zenoh drops
+/// it when this process or its link goes. None (logged) if Zenoh refuses it.
+async fn declare_alive(
+    session: &zenoh::Session,
+    prefix: &str,
+) -> Option<zenoh::liveliness::LivelinessToken> {
+    let key = format!("{prefix}/{}", crate::fleet::ALIVE);
+    match session.liveliness().declare_token(&key).await {
+        Ok(t) => Some(t),
+        Err(e) => {
+            tracing::warn!(
+                key,
+                "the fleet view will not see this vehicle come and go: {e}"
+            );
+            None
+        }
+    }
+}
+
+/// Where people reach the dashboard: `[http] public_url`, else the bound address, with
+/// the host's name when bound to every address (the fleet view links to it).
+pub fn dashboard_url(http: &crate::config::HttpConfig, bound: std::net::SocketAddr) -> String {
+    if let Some(u) = http.public_url.as_deref().filter(|u| !u.is_empty()) {
+        return u.to_string();
+    }
+    let scheme = if http.tls().is_some() {
+        "https"
+    } else {
+        "http"
+    };
+    let host = if bound.ip().is_unspecified() {
+        host_name().unwrap_or_else(|| "localhost".into())
+    } else if bound.is_ipv6() {
+        format!("[{}]", bound.ip())
+    } else {
+        bound.ip().to_string()
+    };
+    format!("{scheme}://{host}:{}/", bound.port())
+}
+
+/// This host's name (Linux: the kernel's; elsewhere `HOSTNAME`).
+fn host_name() -> Option<String> {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty())
+}
+
+/// `skyfuse monitor`: the fleet view alone (no estimator, no inputs) until `shutdown`.
+pub async fn monitor(
+    config: Config,
+    listeners: Listeners,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), RunError> {
+    let tls = match config.http.tls() {
+        Some((cert, key)) => Some(crate::http::tls::server_config(cert, key)?),
+        None => None,
+    };
+    let session = listeners.zenoh;
+    let fleet = FleetWatch::new(session.clone(), config.fleet.clone(), true);
+    let fleet_task = tokio::spawn(fleet.clone().run());
+    let http_addr = listeners.http.local_addr().map_err(RunError::Http)?;
+    tracing::info!(
+        zid = %session.zid(),
+        http = %http_addr,
+        watch = %config.fleet.watch,
+        "skyfuse monitor running: the fleet view at /fleet"
+    );
+    let app = axum::Router::new()
+        .route(
+            "/",
+            axum::routing::get(|| async { axum::response::Redirect::temporary("/fleet") }),
+        )
+        .route(
+            "/app.css",
+            axum::routing::get(|| crate::http::assets::serve("app.css")),
+        )
+        .route("/healthz", axum::routing::get(|| async { "ok\n" }))
+        .merge(crate::fleet::watch::routes(fleet));
+    serve_http(listeners.http, tls, app, shutdown).await?;
+    fleet_task.abort();
     if let Err(e) = session.close().await {
         tracing::warn!("closing zenoh session: {e}");
     }

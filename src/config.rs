@@ -72,6 +72,47 @@ pub struct Config {
     pub record: RecordConfig,
     #[serde(default)]
     pub foxglove: FoxgloveConfig,
+    #[serde(default)]
+    pub fleet: FleetConfig,
+}
+
+/// The output prefixes the fleet view watches: the default `[output] prefix`
+/// (`skyfuse/{vehicle}`) under any Zenoh namespace, or none.
+pub const DEFAULT_FLEET_WATCH: &str = "**/skyfuse/*";
+/// A vehicle with no output for this long is shown as stale.
+pub const DEFAULT_FLEET_STALE_S: f64 = 3.0;
+/// A vehicle whose liveliness token is gone, or silent for this long, is shown grey.
+pub const DEFAULT_FLEET_GONE_S: f64 = 10.0;
+/// A grey vehicle is dropped from the fleet after this long.
+pub const DEFAULT_FLEET_FORGET_S: f64 = 120.0;
+/// Track points kept per vehicle (one a second at most: 10 minutes).
+pub const DEFAULT_FLEET_TRACK_POINTS: usize = 600;
+
+/// `[fleet]`: the fleet view (`skyfuse monitor`, and `/fleet` on every vehicle).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct FleetConfig {
+    /// Key expression of the vehicles' output prefixes to watch: `<watch>/pose`,
+    /// `<watch>/health`, `<watch>/events` and the liveliness token `<watch>/alive`.
+    /// The default finds every skyfuse with the default `[output] prefix`, in any Zenoh
+    /// namespace.
+    pub watch: String,
+    pub stale_after_s: f64,
+    pub gone_after_s: f64,
+    pub forget_after_s: f64,
+    pub track_points: usize,
+}
+
+impl Default for FleetConfig {
+    fn default() -> Self {
+        Self {
+            watch: DEFAULT_FLEET_WATCH.into(),
+            stale_after_s: DEFAULT_FLEET_STALE_S,
+            gone_after_s: DEFAULT_FLEET_GONE_S,
+            forget_after_s: DEFAULT_FLEET_FORGET_S,
+            track_points: DEFAULT_FLEET_TRACK_POINTS,
+        }
+    }
 }
 
 /// `[record]`: the MCAP flight recorder.
@@ -171,8 +212,20 @@ pub struct ZenohConfig {
     pub listen: Vec<String>,
     pub connect: Vec<String>,
     pub multicast_scouting: bool,
+    /// Zenoh's session namespace: every key this session puts or subscribes is prefixed
+    /// with it on the network (`bot1` → `bot1/gps/fix`), as zenoh-bridge-ros2dds's
+    /// `namespace` does for a robot's ROS topics. Several vehicles share one Zenoh
+    /// network this way without renaming their inputs.
+    pub namespace: Option<String>,
     /// Optional path to a full Zenoh JSON5 config; the keys above are applied on top.
     pub config_file: Option<String>,
+}
+
+impl ZenohConfig {
+    /// The namespace, if one is set (an empty string is none).
+    pub fn namespace(&self) -> Option<&str> {
+        non_empty(&self.namespace)
+    }
 }
 
 impl Default for ZenohConfig {
@@ -182,6 +235,7 @@ impl Default for ZenohConfig {
             listen: Vec::new(),
             connect: Vec::new(),
             multicast_scouting: true,
+            namespace: None,
             config_file: None,
         }
     }
@@ -197,6 +251,9 @@ pub struct HttpConfig {
     /// neither (plain HTTP).
     pub tls_cert: Option<String>,
     pub tls_key: Option<String>,
+    /// Where people reach this dashboard (announced to the fleet view), e.g.
+    /// `http://drone1.local:8080/`; unset: derived from `bind` and the host name.
+    pub public_url: Option<String>,
 }
 
 impl HttpConfig {
@@ -213,6 +270,7 @@ impl Default for HttpConfig {
             token: String::new(),
             tls_cert: None,
             tls_key: None,
+            public_url: None,
         }
     }
 }
@@ -543,6 +601,34 @@ impl Config {
             if split_host_port(b).is_none() {
                 return Err(format!("[foxglove] bind {b:?} is not HOST:PORT"));
             }
+        }
+        if let Some(ns) = self.zenoh.namespace() {
+            let ok = zenoh::key_expr::KeyExpr::try_from(ns)
+                .is_ok_and(|k| !k.as_str().contains('*') && !k.as_str().starts_with('@'));
+            if !ok {
+                return Err(format!(
+                    "[zenoh] namespace {ns:?} must be a key expression without wildcards, e.g. \"bot1\""
+                ));
+            }
+        }
+        let f = &self.fleet;
+        if let Err(e) = zenoh::key_expr::KeyExpr::try_from(f.watch.as_str()) {
+            return Err(format!(
+                "[fleet] watch {:?} is not a valid Zenoh key expression: {e}",
+                f.watch
+            ));
+        }
+        for (name, v) in [
+            ("stale_after_s", f.stale_after_s),
+            ("gone_after_s", f.gone_after_s),
+            ("forget_after_s", f.forget_after_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("[fleet] {name} must be a positive number, not {v}"));
+            }
+        }
+        if !(f.stale_after_s <= f.gone_after_s && f.gone_after_s <= f.forget_after_s) {
+            return Err("[fleet] needs stale_after_s <= gone_after_s <= forget_after_s".into());
         }
         let mut ids = HashSet::new();
         for (i, input) in self.inputs.iter().enumerate() {

@@ -23,6 +23,8 @@
 //! - [`protocol`]: the frames of `/ws` as types (web/PROTOCOL.md is checked against them).
 //! - [`hub`]: the websocket fan-out: bounded per-client queues that drop oldest.
 //! - [`http`]: the JSON API, the status views ([`http::AppState`]), the page.
+//! - [`fleet`]: every skyfuse on the network on one page (`/fleet`, `skyfuse monitor`),
+//!   from their outputs and liveliness tokens.
 //! - [`app`]: `run(config, listeners, shutdown)`, wiring it all together.
 //! - [`cli`]: the command line; `main.rs` only calls [`cli::main`].
 
@@ -34,6 +36,7 @@ pub mod app;
 pub mod cli;
 pub mod clock;
 pub mod config;
+pub mod fleet;
 pub mod http;
 pub mod hub;
 pub mod ingest;

@@ -85,6 +85,9 @@ impl Podman {
 struct Stack<'a> {
     podman: &'a Podman,
     project: String,
+    /// The compose file, from the repository root.
+    file: &'static str,
+    services: &'static [&'static str],
     env: Vec<(String, String)>,
 }
 
@@ -92,7 +95,7 @@ impl Stack<'_> {
     fn compose(&self, args: &[&str]) -> Output {
         self.podman
             .command("podman-compose")
-            .args(["-p", &self.project, "-f", "docker/compose.yaml"])
+            .args(["-p", &self.project, "-f", self.file])
             .args(args)
             .envs(self.env.iter().cloned())
             .stdin(Stdio::null())
@@ -114,7 +117,7 @@ impl Stack<'_> {
     }
 
     fn all_logs(&self) -> String {
-        ["zenohd", "skyfuse", "vehicle-sim"]
+        self.services
             .iter()
             .map(|s| format!("--- {s} ---\n{}", self.logs(s)))
             .collect::<Vec<_>>()
@@ -193,19 +196,32 @@ fn all_healthy(s: &Value) -> bool {
             .all(|x| x["health"] == "ok" && x["received"].as_u64().unwrap_or(0) > 0)
 }
 
-#[test]
-fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_stops_cleanly() {
-    if skip_requested("containers", "the compose deployment") {
-        return;
-    }
+/// One container test at a time: each stack starts several skyfuse processes, and the
+/// image is built once (the first test builds it, the next finds it done).
+static CONTAINER_TESTS: std::sync::Mutex<bool> = std::sync::Mutex::new(false);
+
+fn lock(m: &'static std::sync::Mutex<bool>) -> std::sync::MutexGuard<'static, bool> {
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+fn podman_installed() {
     for tool in ["podman", "podman-compose"] {
         assert!(
             Command::new(tool).arg("--version").output().is_ok(),
             "{tool} is not installed: ./tests/run installs it (Debian packages podman runc podman-compose debootstrap)"
         );
     }
-    let podman = Podman::new();
-    sh(&podman, "tests/containers/prepare");
+}
+
+/// The base images (tests/containers/prepare) and the image from docker/Dockerfile,
+/// checked (size, user, health check). Called with CONTAINER_TESTS held.
+fn build_image(podman: &Podman) {
+    static BUILT: std::sync::Mutex<bool> = std::sync::Mutex::new(false);
+    let mut built = lock(&BUILT);
+    if *built {
+        return;
+    }
+    sh(podman, "tests/containers/prepare");
 
     // The image, from the Dockerfile users get. The registry cache and the CA bundle are
     // mounts of this test, not part of the Dockerfile.
@@ -274,6 +290,19 @@ fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_
         ])
         .contains(r#"["CMD","/usr/local/bin/skyfuse","healthcheck"]"#));
 
+    *built = true;
+}
+
+#[test]
+fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_stops_cleanly() {
+    if skip_requested("containers", "the compose deployment") {
+        return;
+    }
+    podman_installed();
+    let _one_stack_at_a_time = lock(&CONTAINER_TESTS);
+    let podman = Podman::new();
+    build_image(&podman);
+
     // The deployment: ports on the host chosen free; MAVLink to a UDP port on the host.
     let http_port = free_port();
     let zenoh_port = free_port();
@@ -281,6 +310,8 @@ fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_
     let stack = Stack {
         podman: &podman,
         project: format!("skyfuse-e2e-{}", std::process::id()),
+        file: "docker/compose.yaml",
+        services: &["zenohd", "skyfuse", "vehicle-sim"],
         env: vec![
             ("SKYFUSE_IMAGE".into(), IMAGE.into()),
             ("SKYFUSE_HTTP_PORT".into(), http_port.to_string()),
@@ -432,4 +463,159 @@ fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_
         stop_time < Duration::from_secs(2),
         "stop took {stop_time:?}"
     );
+}
+
+/// The monitor's fleet view through its published port.
+fn get_fleet(port: u16) -> Option<Value> {
+    match http_get(port, "/api/v1/fleet") {
+        Ok((200, body)) => serde_json::from_str(&body).ok(),
+        _ => None,
+    }
+}
+
+fn fleet_row<'a>(f: &'a Value, name: &str) -> Option<&'a Value> {
+    f["vehicles"].as_array()?.iter().find(|v| v["name"] == name)
+}
+
+fn wait_fleet(
+    port: u16,
+    timeout: Duration,
+    what: &str,
+    stack: &Stack,
+    done: impl Fn(&Value) -> bool,
+) -> Value {
+    let start = Instant::now();
+    let mut last = None;
+    while start.elapsed() < timeout {
+        if let Some(f) = get_fleet(port) {
+            if done(&f) {
+                return f;
+            }
+            last = Some(f);
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    panic!(
+        "{what}: not within {timeout:?}; last fleet view {}\n{}",
+        last.map(|f| f.to_string()).unwrap_or_default(),
+        stack.all_logs()
+    );
+}
+
+#[test]
+fn the_fleet_compose_shows_three_vehicles_across_two_routers_on_one_monitor() {
+    if skip_requested("containers", "the fleet compose deployment") {
+        return;
+    }
+    podman_installed();
+    let _one_stack_at_a_time = lock(&CONTAINER_TESTS);
+    let podman = Podman::new();
+    build_image(&podman);
+
+    let monitor_port = free_port();
+    let drone_ports = [free_port(), free_port(), free_port()];
+    let mut env = vec![
+        ("SKYFUSE_IMAGE".to_string(), IMAGE.to_string()),
+        ("FLEET_HTTP_PORT".into(), monitor_port.to_string()),
+        ("ZENOH_PORT".into(), free_port().to_string()),
+    ];
+    for (i, p) in drone_ports.iter().enumerate() {
+        env.push((format!("DRONE{}_HTTP_PORT", i + 1), p.to_string()));
+    }
+    let stack = Stack {
+        podman: &podman,
+        project: format!("skyfuse-fleet-{}", std::process::id()),
+        file: "docker/compose.fleet.yaml",
+        services: &[
+            "router-a",
+            "router-b",
+            "drone1",
+            "drone1-sim",
+            "drone2",
+            "drone2-sim",
+            "drone3",
+            "drone3-sim",
+            "monitor",
+        ],
+        env,
+    };
+    let started = Instant::now();
+    let up = stack.compose(&["up", "-d"]);
+    assert!(
+        up.status.success(),
+        "podman-compose up: {}\n{}",
+        String::from_utf8_lossy(&up.stdout),
+        String::from_utf8_lossy(&up.stderr)
+    );
+    let up_took = started.elapsed();
+    // drone1 and drone2 reach the monitor across the link between the routers.
+    let names = ["drone1", "drone2", "drone3"];
+    let f = wait_fleet(
+        monitor_port,
+        Duration::from_secs(120),
+        "three vehicles live with a valid estimate on the monitor",
+        &stack,
+        |f| {
+            names.iter().all(|n| {
+                fleet_row(f, n).is_some_and(|r| r["presence"] == "live" && r["valid"] == true)
+            })
+        },
+    );
+    eprintln!(
+        "fleet: `up` took {:.1} s; 3 vehicles live and valid on the monitor {:.1} s after it began",
+        up_took.as_secs_f64(),
+        started.elapsed().as_secs_f64()
+    );
+    assert_eq!(f["monitor"], true);
+    for (n, port) in names.iter().zip(drone_ports) {
+        let r = fleet_row(&f, n).expect("row");
+        assert_eq!(r["id"], format!("{n}/skyfuse/{n}"), "its namespace: {f}");
+        assert_eq!(r["dashboard"], format!("http://localhost:{port}/"), "{f}");
+        assert_eq!(r["frame"], "geo", "{f}");
+        assert_eq!(r["zenoh"]["routers"], 1, "a client of one router: {f}");
+        // Each vehicle fuses its own sensors only (namespaces keep them apart).
+        let s = get_status(port).expect("the vehicle's own status");
+        assert_eq!(s["service"]["vehicle"], *n);
+        let imu = s["sensors"]
+            .as_array()
+            .and_then(|v| v.iter().find(|x| x["id"] == "imu"))
+            .expect("imu");
+        let rate = imu["rate_hz"].as_f64().unwrap_or(0.0);
+        assert!((150.0..260.0).contains(&rate), "{n}: imu at {rate} Hz: {s}");
+    }
+    // The vehicles fly side by side (each sim's home 40 m north of the last).
+    let y = |n: &str| {
+        fleet_row(&f, n)
+            .and_then(|r| r["xy"][1].as_f64())
+            .unwrap_or(f64::NAN)
+    };
+    assert!(y("drone3") - y("drone1") > 50.0, "{f}");
+
+    // drone2 stops: grey on the monitor; the others stay live.
+    let stopped = Instant::now();
+    podman.run(&["stop", "-t", "5", &stack.container("drone2")]);
+    let f = wait_fleet(
+        monitor_port,
+        Duration::from_secs(20),
+        "drone2 gone",
+        &stack,
+        |f| fleet_row(f, "drone2").is_some_and(|r| r["presence"] == "gone"),
+    );
+    eprintln!(
+        "fleet: drone2 grey {:.2} s after `podman stop` began",
+        stopped.elapsed().as_secs_f64()
+    );
+    for n in ["drone1", "drone3"] {
+        assert_eq!(
+            fleet_row(&f, n).map(|r| r["presence"].clone()),
+            Some("live".into()),
+            "{f}"
+        );
+    }
+    // The page itself comes from the monitor.
+    let (code, page) = http_get(monitor_port, "/fleet").expect("GET /fleet");
+    assert_eq!(code, 200);
+    assert!(page.contains("fleet.js"));
+    let health = podman.output(&["healthcheck", "run", &stack.container("monitor")]);
+    assert!(health.status.success(), "the monitor's HEALTHCHECK failed");
 }

@@ -52,9 +52,21 @@ pub enum Command {
         /// Simulator seed.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Where the simulated vehicle flies: LAT,LON[,ALT] (default PX4 SITL's home).
+        #[arg(long, value_name = "LAT,LON[,ALT]", value_parser = parse_home)]
+        home: Option<(f64, f64, f64)>,
         /// Do not try to open a browser.
         #[arg(long)]
         no_browser: bool,
+    },
+    /// The fleet view alone, for a ground station: every skyfuse on the Zenoh network on
+    /// one page (http://<bind>/fleet). No estimator and no inputs; only `[zenoh]`,
+    /// `[http]` and `[fleet]` of the config are used.
+    Monitor {
+        #[arg(short, long, env = "SKYFUSE_CONFIG")]
+        config: Option<PathBuf>,
+        #[command(flatten)]
+        net: NetArgs,
     },
     /// Check a config file and print what it configures.
     CheckConfig { file: PathBuf },
@@ -82,6 +94,9 @@ pub enum Command {
         net: NetArgs,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Where the simulated vehicle flies: LAT,LON[,ALT] (default PX4 SITL's home).
+        #[arg(long, value_name = "LAT,LON[,ALT]", value_parser = parse_home)]
+        home: Option<(f64, f64, f64)>,
         /// Seconds of flight (default: until stopped; offline: one 140 s loop).
         #[arg(long)]
         duration: Option<f64>,
@@ -151,9 +166,16 @@ impl RecordArgs {
     }
 }
 
-/// Network overrides shared by the commands.
+/// Network and identity overrides shared by the commands.
 #[derive(Debug, Args, Default)]
 pub struct NetArgs {
+    /// Zenoh namespace for every key of this process (`[zenoh] namespace`), e.g. bot1:
+    /// several vehicles on one Zenoh network, each with its own inputs.
+    #[arg(long, value_name = "NS")]
+    pub namespace: Option<String>,
+    /// Vehicle name (`[service] vehicle`; the outputs' key prefix skyfuse/<vehicle>).
+    #[arg(long, value_name = "NAME")]
+    pub vehicle: Option<String>,
     /// Zenoh endpoint to listen on (repeatable), e.g. tcp/0.0.0.0:7447.
     #[arg(long = "listen", value_name = "ENDPOINT")]
     pub listen: Vec<String>,
@@ -169,6 +191,26 @@ pub struct NetArgs {
     /// HTTP address for the dashboard and API, e.g. 0.0.0.0:8080.
     #[arg(long, value_name = "ADDR")]
     pub http: Option<String>,
+}
+
+/// `LAT,LON[,ALT]` in degrees and metres.
+fn parse_home(s: &str) -> Result<(f64, f64, f64), String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("{s:?}: {e} (expected LAT,LON[,ALT])"))?;
+    let (lat, lon, alt) = match v[..] {
+        [lat, lon] => (lat, lon, crate::sim::sensors::HOME_ALT),
+        [lat, lon, alt] => (lat, lon, alt),
+        _ => return Err(format!("{s:?}: expected LAT,LON[,ALT]")),
+    };
+    if !(lat.abs() <= 89.0 && lon.abs() <= 180.0 && alt.is_finite()) {
+        return Err(format!(
+            "{s:?}: latitude within ±89°, longitude within ±180°"
+        ));
+    }
+    Ok((lat, lon, alt))
 }
 
 fn parse_mode(s: &str) -> Result<ZenohMode, String> {
@@ -195,6 +237,12 @@ impl NetArgs {
         }
         if let Some(h) = &self.http {
             c.http.bind = h.clone();
+        }
+        if let Some(ns) = &self.namespace {
+            c.zenoh.namespace = Some(ns.clone());
+        }
+        if let Some(v) = &self.vehicle {
+            c.service.vehicle = v.clone();
         }
         c.validate().map_err(|e| format!("command line: {e}"))
     }
@@ -370,8 +418,22 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             record,
             mavlink,
             seed,
+            home,
             no_browser,
-        } => demo(net, record, mavlink, seed, no_browser).await,
+        } => demo(net, record, mavlink, seed, home, no_browser).await,
+        Command::Monitor { config, net } => {
+            let c = load(config.as_deref(), &net)?;
+            let http = tokio::net::TcpListener::bind(&c.http.bind)
+                .await
+                .map_err(|e| format!("cannot listen for HTTP on {}: {e}", c.http.bind))?;
+            let mut shutdown = Box::pin(app::shutdown_signal());
+            let Some(zenoh) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
+                return Ok(());
+            };
+            app::monitor(c, Listeners { http, zenoh }, shutdown)
+                .await
+                .map_err(|e| e.to_string())
+        }
         Command::Sim { list: true, .. } => {
             for (name, description) in scenario::NAMES {
                 println!("  {name:<16} {description}");
@@ -414,6 +476,7 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             config,
             net,
             seed,
+            home,
             duration,
             scenario,
             ..
@@ -426,13 +489,16 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
                 return Ok(());
             };
             let sensors = scn.streams.iter().map(|s| s.input_id.to_string()).collect();
-            let sim = Simulator::with_profile(
+            let mut sim = Simulator::with_profile(
                 &scn.streams,
                 seed,
                 duration.unwrap_or(f64::INFINITY),
                 scn.profile,
                 Arc::new(FaultSchedule::new(sensors, scn.faults.clone())),
             );
+            if let Some((lat, lon, alt)) = home {
+                sim.set_home(lat, lon, alt);
+            }
             let counters = Arc::new(publish::PublishCounters::default());
             let n =
                 publish::run_publisher(session.clone(), Arc::new(c), sim, counters, shutdown).await;
@@ -493,6 +559,7 @@ async fn demo(
     record: RecordArgs,
     mavlink: Vec<String>,
     seed: u64,
+    home: Option<(f64, f64, f64)>,
     no_browser: bool,
 ) -> Result<(), String> {
     let mut c = Config::load(None, env_vars()).map_err(|e| e.to_string())?;
@@ -547,7 +614,10 @@ async fn demo(
         c.http.token = random_token();
     }
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
-    let sim = Simulator::new(DEMO_STREAMS, seed, f64::INFINITY);
+    let mut sim = Simulator::new(DEMO_STREAMS, seed, f64::INFINITY);
+    if let Some((lat, lon, alt)) = home {
+        sim.set_home(lat, lon, alt);
+    }
     let faults = sim.faults();
     let counters = Arc::new(publish::PublishCounters::default());
     let mut sim_stop = stop_rx.clone();

@@ -8,6 +8,8 @@ const INDEX_HTML: &str = include_str!("../../web/index.html");
 const APP_JS: &str = include_str!("../../web/app.js");
 const APP_CSS: &str = include_str!("../../web/app.css");
 const ACCESS_HTML: &str = include_str!("../../web/access.html");
+const FLEET_HTML: &str = include_str!("../../web/fleet.html");
+const FLEET_JS: &str = include_str!("../../web/fleet.js");
 const UPLOT_JS: &str = include_str!("../../web/node_modules/uplot/dist/uPlot.iife.min.js");
 const UPLOT_CSS: &str = include_str!("../../web/node_modules/uplot/dist/uPlot.min.css");
 
@@ -33,6 +35,8 @@ pub async fn serve(name: &'static str) -> Response {
         "app.js" => file(APP_JS, JS),
         "app.css" => file(APP_CSS, CSS),
         "access.html" => file(ACCESS_HTML, HTML),
+        "fleet.html" => file(FLEET_HTML, HTML),
+        "fleet.js" => file(FLEET_JS, JS),
         _ => StatusCode::NOT_FOUND.into_response(),
     }
 }

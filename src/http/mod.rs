@@ -16,7 +16,7 @@ use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::Duration;
 
-mod assets;
+pub(crate) mod assets;
 pub mod metrics;
 mod state;
 pub mod tls;

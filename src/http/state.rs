@@ -44,6 +44,8 @@ pub struct AppState {
     pub(crate) zenoh_peers: AtomicU64,
     /// The flight recorder and Foxglove live view, when configured.
     pub recorder: Option<Arc<crate::record::writer::Recorder>>,
+    /// Where people reach this dashboard (announced in `<prefix>/health`).
+    pub dashboard_url: String,
 }
 
 impl AppState {
@@ -186,10 +188,37 @@ impl AppState {
     }
 
     /// Health as published on `<prefix>/health`: sensors and the estimator's verdict.
+    /// `<prefix>/health`, once a second: the sensors and the estimator as in the status,
+    /// plus what the fleet view shows of this vehicle (who it is, where its dashboard is,
+    /// whether the autopilot gets poses, its Zenoh link).
     pub fn health_json(&self) -> serde_json::Value {
+        let now = now_us();
+        let cfg = &self.config;
+        let vpe = self.mavlink_stats.status(now, cfg.mavlink.rate_hz);
+        let withheld = match vpe.detail {
+            crate::output::OutputDetail::Mavlink { withheld, .. } => Some(withheld),
+            _ => None,
+        };
         json!({
-            "time_us": now_us(),
-            "sensors": self.sensors(now_us()),
+            "time_us": now,
+            "service": {
+                "vehicle": cfg.service.vehicle,
+                "version": env!("CARGO_PKG_VERSION"),
+                "started_us": self.started_us,
+                "dashboard": self.dashboard_url,
+            },
+            "vpe": {
+                "endpoints": self.mavlink_stats.links.len(),
+                "sending": vpe.sending,
+                "sent": vpe.sent,
+                "withheld": withheld,
+                "reason": vpe.not_sending_reason,
+            },
+            "zenoh": {
+                "routers": self.zenoh_routers.load(Relaxed),
+                "peers": self.zenoh_peers.load(Relaxed),
+            },
+            "sensors": self.sensors(now),
             "estimator": self.pipeline.estimator_status(),
         })
     }

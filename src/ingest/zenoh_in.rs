@@ -72,6 +72,10 @@ pub fn zenoh_config(cfg: &ZenohConfig) -> Result<zenoh::Config, ZenohError> {
         },
     )
     .map_err(err)?;
+    if let Some(ns) = cfg.namespace() {
+        let quoted = serde_json::to_string(ns).unwrap_or_default();
+        z.insert_json5("namespace", &quoted).map_err(err)?;
+    }
     Ok(z)
 }
 

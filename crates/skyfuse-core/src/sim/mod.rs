@@ -108,6 +108,12 @@ impl Simulator {
         self.models.origin
     }
 
+    /// Flies from another home (default: PX4 SITL's, Zürich), so that several simulated
+    /// vehicles fly side by side rather than on top of each other.
+    pub fn set_home(&mut self, lat_deg: f64, lon_deg: f64, alt_m: f64) {
+        self.models.set_home(lat_deg, lon_deg, alt_m);
+    }
+
     /// Measure every stream whose next sample is due before `horizon`.
     fn measure_until(&mut self, horizon: f64) {
         for i in 0..self.streams.len() {

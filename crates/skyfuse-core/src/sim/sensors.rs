@@ -143,6 +143,12 @@ impl SensorModels {
         }
     }
 
+    /// See [`super::Simulator::set_home`].
+    pub fn set_home(&mut self, lat_deg: f64, lon_deg: f64, alt_m: f64) {
+        self.origin = LocalEnu::new(lat_deg, lon_deg, alt_m);
+        self.last_fix = (lat_deg, lon_deg, alt_m);
+    }
+
     pub fn measure(&mut self, kind: SensorKind, s: &TruthState) -> SensorData {
         self.measure_with(kind, s, &[])
     }

@@ -1,0 +1,95 @@
+//! The decoders skyfuse exposes to the outside, one fuzz target each. Shared by the
+//! mutation bench (`benches/fuzz.rs`, stable, in `cargo test`) and the coverage-guided
+//! libFuzzer targets beside this file (`fuzz/fuzz_targets/`, `cargo fuzz run NAME`), so
+//! both exercise exactly the same entry points.
+
+use skyfuse::codec::{self, Format, RosType};
+
+/// One decoder exposed to the outside.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Target {
+    /// ROS 2 CDR; the first byte picks the message type, so every type sees every seed.
+    Ros2Cdr,
+    /// ROS 1 serialisation, the type picked as for CDR.
+    Ros1,
+    /// mavlink-server's JSON messages.
+    MavlinkJson,
+    /// Raw MAVLink v1/v2 frames, several per payload.
+    MavlinkRaw,
+    /// skyfuse's own JSON samples (the simulator's, or any JSON publisher's).
+    SkyfuseJson,
+    /// The TOML configuration.
+    ConfigToml,
+    /// A websocket client message.
+    WsClient,
+    /// An MCAP file given to `skyfuse replay`.
+    Mcap,
+    /// The fault-control body (`POST /api/v1/sim/fault`).
+    ControlBody,
+}
+
+impl Target {
+    pub const ALL: [Target; 9] = [
+        Target::Ros2Cdr,
+        Target::Ros1,
+        Target::MavlinkJson,
+        Target::MavlinkRaw,
+        Target::SkyfuseJson,
+        Target::ConfigToml,
+        Target::WsClient,
+        Target::Mcap,
+        Target::ControlBody,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Target::Ros2Cdr => "ros2_cdr",
+            Target::Ros1 => "ros1",
+            Target::MavlinkJson => "mavlink_json",
+            Target::MavlinkRaw => "mavlink_raw",
+            Target::SkyfuseJson => "skyfuse_json",
+            Target::ConfigToml => "config_toml",
+            Target::WsClient => "ws_client",
+            Target::Mcap => "mcap",
+            Target::ControlBody => "control_body",
+        }
+    }
+
+    /// Decodes `bytes` as skyfuse would; true when they are accepted.
+    pub fn decode(self, bytes: &[u8]) -> bool {
+        let mut out = vec![];
+        match self {
+            Target::Ros2Cdr | Target::Ros1 => {
+                let Some((&i, rest)) = bytes.split_first() else {
+                    return false;
+                };
+                let format = if self == Target::Ros2Cdr {
+                    Format::Ros2
+                } else {
+                    Format::Ros1
+                };
+                let ty = RosType::ALL[usize::from(i) % RosType::ALL.len()];
+                codec::decode(format, Some(ty), rest, &mut out).is_ok()
+            }
+            Target::MavlinkJson => {
+                codec::decode(Format::MavlinkJson, None, bytes, &mut out).is_ok()
+            }
+            Target::MavlinkRaw => codec::decode(Format::MavlinkRaw, None, bytes, &mut out).is_ok(),
+            Target::SkyfuseJson => codec::decode(Format::Json, None, bytes, &mut out).is_ok(),
+            Target::ConfigToml => std::str::from_utf8(bytes)
+                .is_ok_and(|s| skyfuse::config::Config::from_toml_str(s, "fuzz").is_ok()),
+            Target::WsClient => {
+                serde_json::from_slice::<skyfuse::protocol::ClientMessage>(bytes).is_ok()
+            }
+            Target::Mcap => skyfuse::replay::mcap::parse(bytes, &mut |_, _| {}).is_ok(),
+            Target::ControlBody => {
+                serde_json::from_slice::<skyfuse::sim::faults::FaultRequest>(bytes).is_ok()
+            }
+        }
+    }
+
+    /// The prefix byte that makes [`Target::decode`] read the rest as `ty` (ROS targets).
+    pub fn ros_type_byte(ty: RosType) -> u8 {
+        RosType::ALL.iter().position(|x| *x == ty).unwrap_or(0) as u8
+    }
+}
