@@ -215,7 +215,10 @@ fn service() -> (Vec<f64>, f64, u64, usize) {
     let uport = udp.local_addr().expect("addr").port();
     let cfg = std::env::temp_dir().join(format!("skyfuse-latency-{zport}.toml"));
     std::fs::write(&cfg, config(zport, uport)).expect("config");
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_skyfuse"))
+    // SKYFUSE_BIN: another build to compare (before/after a change), same harness.
+    let binary = std::env::var_os("SKYFUSE_BIN")
+        .unwrap_or_else(|| env!("CARGO_BIN_EXE_skyfuse").into());
+    let mut child = std::process::Command::new(binary)
         .args(["run", "-c", cfg.to_str().expect("path")])
         .env("RUST_LOG", "warn")
         .stdout(std::process::Stdio::null())

@@ -125,14 +125,34 @@ impl MavlinkStats {
     }
 }
 
+/// A UDP link's socket, its destination and its name, once the link's task set it up.
+type DirectUdp = Arc<std::sync::OnceLock<(tokio::net::UdpSocket, SocketAddr, String)>>;
+
 /// A frame to one endpoint; never waits.
 struct Link {
     tx: mpsc::Sender<Arc<[u8]>>,
     stats: Arc<LinkStats>,
+    /// `udpout`: frames leave from the caller at once (a non-blocking send), not through
+    /// the link's task, which only sets the socket up: one task hop less between the
+    /// pose and the autopilot.
+    direct: DirectUdp,
 }
 
 impl Link {
     fn offer(&self, frame: &Arc<[u8]>) {
+        if let Some((sock, to, name)) = self.direct.get() {
+            match sock.try_send_to(frame, *to) {
+                Ok(_) => {
+                    self.stats.sent.fetch_add(1, Relaxed);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    self.stats.dropped.fetch_add(1, Relaxed);
+                }
+                // ICMP port unreachable surfaces as a send error: nobody listens (yet).
+                Err(e) => self.stats.error(format!("{name}: {e}")),
+            }
+            return;
+        }
         if self.tx.try_send(frame.clone()).is_err() {
             self.stats.dropped.fetch_add(1, Relaxed);
         }
@@ -142,15 +162,17 @@ impl Link {
 fn spawn_link(ep: Endpoint, stats: Arc<LinkStats>) -> Link {
     let (tx, rx) = mpsc::channel(LINK_QUEUE);
     let s = stats.clone();
+    let direct = DirectUdp::default();
+    let d = direct.clone();
     tokio::spawn(async move {
         match ep {
-            Endpoint::UdpOut(addr) => udp_out(addr, rx, s).await,
+            Endpoint::UdpOut(addr) => udp_out(addr, rx, s, d).await,
             Endpoint::UdpIn(addr) => udp_in(addr, rx, s).await,
             Endpoint::TcpOut(addr) => tcp_out(addr, rx, s).await,
             Endpoint::Serial { path, baud } => serial(path, baud, rx, s).await,
         }
     });
-    Link { tx, stats }
+    Link { tx, stats, direct }
 }
 
 /// Drain what arrived while the link could not send, counting it as dropped.
@@ -186,7 +208,12 @@ async fn resolve(addr: &str) -> std::io::Result<SocketAddr> {
         .ok_or_else(|| std::io::Error::other(format!("{addr} resolves to nothing")))
 }
 
-async fn udp_out(addr: String, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+async fn udp_out(
+    addr: String,
+    mut rx: mpsc::Receiver<Arc<[u8]>>,
+    stats: Arc<LinkStats>,
+    direct: DirectUdp,
+) {
     let mut delay = BACKOFF_MIN;
     loop {
         let setup = async {
@@ -210,13 +237,14 @@ async fn udp_out(addr: String, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<Lin
             }
         };
         stats.connected.store(true, Relaxed);
-        while let Some(f) = rx.recv().await {
-            match sock.send_to(&f, to).await {
+        // From now on frames go out from Link::offer; what was queued before goes here.
+        let (sock, to, name) = direct.get_or_init(|| (sock, to, format!("udpout:{addr}")));
+        while let Ok(f) = rx.try_recv() {
+            match sock.send_to(&f, *to).await {
                 Ok(_) => {
                     stats.sent.fetch_add(1, Relaxed);
                 }
-                // ICMP port unreachable surfaces as a send error: nobody listens (yet).
-                Err(e) => stats.error(format!("udpout:{addr}: {e}")),
+                Err(e) => stats.error(format!("{name}: {e}")),
             }
         }
         return;
