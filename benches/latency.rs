@@ -216,8 +216,8 @@ fn service() -> (Vec<f64>, f64, u64, usize) {
     let cfg = std::env::temp_dir().join(format!("skyfuse-latency-{zport}.toml"));
     std::fs::write(&cfg, config(zport, uport)).expect("config");
     // SKYFUSE_BIN: another build to compare (before/after a change), same harness.
-    let binary = std::env::var_os("SKYFUSE_BIN")
-        .unwrap_or_else(|| env!("CARGO_BIN_EXE_skyfuse").into());
+    let binary =
+        std::env::var_os("SKYFUSE_BIN").unwrap_or_else(|| env!("CARGO_BIN_EXE_skyfuse").into());
     let mut child = std::process::Command::new(binary)
         .args(["run", "-c", cfg.to_str().expect("path")])
         .env("RUST_LOG", "warn")

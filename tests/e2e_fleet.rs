@@ -66,7 +66,7 @@ struct Page {
 }
 
 impl Page {
-    fn open(url: &str, steps: &[&str], screenshot: &str) -> Page {
+    fn open(url: &str, steps: &[&str], screenshot: &str, click: &str) -> Page {
         let mut cmd = Command::new(python());
         cmd.arg(repo_root().join("tests/py/fleet_check.py")).args([
             "--url",
@@ -75,6 +75,8 @@ impl Page {
             screenshot,
             "--timeout",
             "60",
+            "--click",
+            click,
         ]);
         for s in steps {
             cmd.args(["--step", s]);
@@ -145,6 +147,7 @@ fn three_vehicles_on_one_monitor_page_one_goes_grey_a_fourth_joins_and_a_restart
             "live:drone3",
         ],
         shot.to_str().expect("path"),
+        "drone1",
     );
 
     // 1. Three vehicles, each on the page with its own colour and drawn on the map.
@@ -214,6 +217,14 @@ fn three_vehicles_on_one_monitor_page_one_goes_grey_a_fourth_joins_and_a_restart
     let r3 = row(&f, "drone3").expect("drone3");
     assert_eq!(r3["slot"], slot3, "{f}");
     assert_eq!(r3["restarts"], 1, "{f}");
+    // A click on drone1's row opens drone1's own dashboard.
+    let click = page.step();
+    assert_eq!(
+        click["opened"],
+        format!("http://127.0.0.1:{}/", d1.http_port),
+        "{click}"
+    );
+    assert_eq!(click["opened_title"], "skyfuse", "{click}");
     page.finish();
     assert!(shot.exists());
     eprintln!(

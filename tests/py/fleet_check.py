@@ -12,6 +12,7 @@ cells; the map: pixels of each row's colour on the canvas; window.fleetStats; se
 the step took) and, unless it is the last step, reads one line from stdin before the
 next step: the driving test stops or starts vehicles in between.
 
+--click NAME then clicks that vehicle's row and prints the URL of the tab it opens;
 --screenshot PATH writes the page after the last step. Exits 0 when every step held, 1
 with {"ok": false, "error": ...} otherwise. Needs `playwright` (tests/requirements.txt)
 and /usr/bin/chromium; `playwright install` is never used.
@@ -63,6 +64,7 @@ def main():
     ap.add_argument("--step", action="append", required=True, help="PRESENCE:NAME[,NAME...]")
     ap.add_argument("--timeout", type=float, default=60.0)
     ap.add_argument("--screenshot", default=None)
+    ap.add_argument("--click", default=None, help="after the last step, click this vehicle's row and report the tab it opens")
     ap.add_argument("--chromium", default=os.environ.get("SKYFUSE_CHROMIUM", "/usr/bin/chromium"))
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
@@ -95,6 +97,14 @@ def main():
                 if i + 1 < len(args.step):
                     if not sys.stdin.readline():
                         raise RuntimeError("stdin closed before the next step")
+            if args.click:
+                # A click on a row opens that vehicle's dashboard (a new tab).
+                with page.expect_popup(timeout=10000) as popup:
+                    page.click(f'#fleet-rows tr[data-name="{args.click}"]')
+                tab = popup.value
+                tab.wait_for_load_state()
+                print(json.dumps({"ok": True, "errors": errors, "clicked": args.click, "opened": tab.url,
+                                  "opened_title": tab.title()}), flush=True)
             if args.screenshot:
                 page.screenshot(path=args.screenshot)
         except Exception as e:  # report, with what the page showed

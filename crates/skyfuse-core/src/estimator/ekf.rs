@@ -562,7 +562,12 @@ mod tests {
         let dense = &f * &p0 * f.transpose();
         let worst = (&ekf.p - &dense).abs().max();
         assert!(worst < 1e-12, "differs by {worst}");
-        assert!(p0.iter().zip(dense.iter()).any(|(a, b)| (a - b).abs() > 1e-6), "F did something");
+        assert!(
+            p0.iter()
+                .zip(dense.iter())
+                .any(|(a, b)| (a - b).abs() > 1e-6),
+            "F did something"
+        );
     }
 
     /// 1-D constant-velocity KF by hand: x = [p, v], F = [[1, dt], [0, 1]], no process
