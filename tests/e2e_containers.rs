@@ -143,11 +143,15 @@ fn sh(podman: &Podman, script: &str) {
     assert!(status.success(), "{script} failed: {status}");
 }
 
-fn get_status(port: u16) -> Option<Value> {
-    match http_get(port, "/api/v1/status") {
+fn get_json(port: u16, path: &str) -> Option<Value> {
+    match http_get(port, path) {
         Ok((200, body)) => serde_json::from_str(&body).ok(),
         _ => None,
     }
+}
+
+fn get_status(port: u16) -> Option<Value> {
+    get_json(port, "/api/v1/status")
 }
 
 /// Poll the status through the published port until `done` holds.
@@ -158,10 +162,23 @@ fn wait_for(
     stack: &Stack,
     done: impl Fn(&Value) -> bool,
 ) -> Value {
+    wait_json(port, "/api/v1/status", timeout, what, stack, done)
+}
+
+/// Poll a JSON endpoint through the published port until `done` holds; panics with the
+/// last answer and the stack's logs when it does not.
+fn wait_json(
+    port: u16,
+    path: &str,
+    timeout: Duration,
+    what: &str,
+    stack: &Stack,
+    done: impl Fn(&Value) -> bool,
+) -> Value {
     let start = Instant::now();
     let mut last = None;
     while start.elapsed() < timeout {
-        if let Some(s) = get_status(port) {
+        if let Some(s) = get_json(port, path) {
             if done(&s) {
                 return s;
             }
@@ -170,7 +187,7 @@ fn wait_for(
         std::thread::sleep(Duration::from_millis(100));
     }
     panic!(
-        "{what}: not within {timeout:?}; last status {}\n{}",
+        "{what}: not within {timeout:?}; last {path}: {}\n{}",
         last.map(|s| s.to_string()).unwrap_or_default(),
         stack.all_logs()
     );
@@ -465,41 +482,8 @@ fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_
     );
 }
 
-/// The monitor's fleet view through its published port.
-fn get_fleet(port: u16) -> Option<Value> {
-    match http_get(port, "/api/v1/fleet") {
-        Ok((200, body)) => serde_json::from_str(&body).ok(),
-        _ => None,
-    }
-}
-
 fn fleet_row<'a>(f: &'a Value, name: &str) -> Option<&'a Value> {
     f["vehicles"].as_array()?.iter().find(|v| v["name"] == name)
-}
-
-fn wait_fleet(
-    port: u16,
-    timeout: Duration,
-    what: &str,
-    stack: &Stack,
-    done: impl Fn(&Value) -> bool,
-) -> Value {
-    let start = Instant::now();
-    let mut last = None;
-    while start.elapsed() < timeout {
-        if let Some(f) = get_fleet(port) {
-            if done(&f) {
-                return f;
-            }
-            last = Some(f);
-        }
-        std::thread::sleep(Duration::from_millis(200));
-    }
-    panic!(
-        "{what}: not within {timeout:?}; last fleet view {}\n{}",
-        last.map(|f| f.to_string()).unwrap_or_default(),
-        stack.all_logs()
-    );
 }
 
 #[test]
@@ -550,8 +534,9 @@ fn the_fleet_compose_shows_three_vehicles_across_two_routers_on_one_monitor() {
     let up_took = started.elapsed();
     // drone1 and drone2 reach the monitor across the link between the routers.
     let names = ["drone1", "drone2", "drone3"];
-    let f = wait_fleet(
+    let f = wait_json(
         monitor_port,
+        "/api/v1/fleet",
         Duration::from_secs(120),
         "three vehicles live with a valid estimate on the monitor",
         &stack,
@@ -594,8 +579,9 @@ fn the_fleet_compose_shows_three_vehicles_across_two_routers_on_one_monitor() {
     // drone2 stops: grey on the monitor; the others stay live.
     let stopped = Instant::now();
     podman.run(&["stop", "-t", "5", &stack.container("drone2")]);
-    let f = wait_fleet(
+    let f = wait_json(
         monitor_port,
+        "/api/v1/fleet",
         Duration::from_secs(20),
         "drone2 gone",
         &stack,

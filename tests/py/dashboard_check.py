@@ -29,14 +29,7 @@ import urllib.error
 import urllib.request
 
 CHARTS = ["flow", "pos_x", "pos_y", "pos_z", "delta_x", "delta_y", "delta_z", "map"]
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
+from probe import CHROMIUM_ARGS  # noqa: E402
 FAULTS = ["stop", "nan", "no-fix", "jump", "covariance", "drift", "reset", "dark-floor", "tof-range", "clear"]
 
 

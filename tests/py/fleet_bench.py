@@ -25,10 +25,8 @@ import sys
 import threading
 import time
 
-from probe import cpu_s, free_port
+from probe import CHROMIUM_ARGS, cpu_s, free_port
 
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run"]
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 

@@ -23,14 +23,7 @@ import os
 import sys
 import time
 
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
+from probe import CHROMIUM_ARGS  # noqa: E402
 
 # Rows as the page shows them, and how many canvas pixels carry each row's colour.
 PAGE_STATE = """() => {

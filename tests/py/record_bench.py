@@ -23,7 +23,7 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from probe import cpu_s, free_port, status  # noqa: E402
+from probe import cpu_s, free_port, run_with_sim, status  # noqa: E402
 
 
 def recorder_thread(pid):
@@ -38,23 +38,9 @@ def recorder_thread(pid):
 
 
 def run_once(binary, seconds, extra, workdir):
-    zport, hport = free_port(), free_port()
     log = open(os.path.join(workdir, "run.log"), "a")
-    svc = subprocess.Popen([binary, "run", "--no-multicast", "--listen", f"tcp/127.0.0.1:{zport}",
-                            "--http", f"127.0.0.1:{hport}", *extra], stdout=log, stderr=subprocess.STDOUT,
-                           env={**os.environ, "RUST_LOG": "warn"})
-    sim = subprocess.Popen([binary, "sim", "--no-multicast", "--connect", f"tcp/127.0.0.1:{zport}",
-                            "--listen", f"tcp/127.0.0.1:{free_port()}"], stdout=log, stderr=subprocess.STDOUT,
-                           env={**os.environ, "RUST_LOG": "warn"})
+    svc, sim, hport = run_with_sim(binary, extra, out=log)
     try:
-        deadline = time.time() + 30
-        while time.time() < deadline:
-            try:
-                if status(hport)["estimator"]["valid"]:
-                    break
-            except Exception:
-                pass
-            time.sleep(0.3)
         time.sleep(3)  # warm-up
         thread = recorder_thread(svc.pid)
         st0, t0 = status(hport), time.time()

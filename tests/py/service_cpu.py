@@ -26,7 +26,7 @@ import threading
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from probe import cpu_s, free_port, status  # noqa: E402
+from probe import cpu_s, run_with_sim, status  # noqa: E402
 
 
 def threads(pid):
@@ -64,23 +64,9 @@ def dashboard_client(port, stop):
 
 
 def run_once(binary, seconds, perf=None):
-    zport, hport = free_port(), free_port()
-    env = {**os.environ, "RUST_LOG": "warn"}
-    svc = subprocess.Popen([binary, "run", "--no-multicast", "--listen", f"tcp/127.0.0.1:{zport}",
-                            "--http", f"127.0.0.1:{hport}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
-    sim = subprocess.Popen([binary, "sim", "--no-multicast", "--connect", f"tcp/127.0.0.1:{zport}",
-                            "--listen", f"tcp/127.0.0.1:{free_port()}"], stdout=subprocess.DEVNULL,
-                           stderr=subprocess.DEVNULL, env=env)
+    svc, sim, hport = run_with_sim(binary)
     stop = threading.Event()
     try:
-        deadline = time.time() + 30
-        while time.time() < deadline:
-            try:
-                if status(hport)["estimator"]["valid"]:
-                    break
-            except Exception:
-                pass
-            time.sleep(0.5)
         client = threading.Thread(target=dashboard_client, args=(hport, stop), daemon=True)
         client.start()
         time.sleep(3)

@@ -253,6 +253,18 @@ fn cut_at_oversized_chunk(bytes: &[u8]) -> (&[u8], Option<String>) {
                     );
                 }
             }
+            let end = usize::try_from(len)
+                .ok()
+                .and_then(|l| body.checked_add(l))
+                .map_or(bytes.len(), |e| e.min(bytes.len()));
+            if uncompressed_records_overrun(&bytes[body.min(end)..end]) {
+                return (
+                    &bytes[..at],
+                    Some(format!(
+                        "a record in the chunk at byte {at} runs past the chunk's end: a damaged file"
+                    )),
+                );
+            }
         }
         match usize::try_from(len).ok().and_then(|l| body.checked_add(l)) {
             Some(next) if next <= bytes.len() => at = next,
@@ -260,6 +272,49 @@ fn cut_at_oversized_chunk(bytes: &[u8]) -> (&[u8], Option<String>) {
         }
     }
     (bytes, None)
+}
+
+/// An uncompressed chunk (its body: start and end time, uncompressed size and CRC,
+/// compression, records) whose records do not fit its records section: the `mcap`
+/// crate's reader would underflow its count of what is left (a panic in a debug build,
+/// a wrapped count in release), so such a chunk ends the file instead. Compressed
+/// chunks are checked by the crate against their uncompressed size.
+fn uncompressed_records_overrun(chunk: &[u8]) -> bool {
+    let u32_at = |i: usize| -> Option<usize> {
+        let b: [u8; 4] = chunk.get(i..i + 4)?.try_into().ok()?;
+        usize::try_from(u32::from_le_bytes(b)).ok()
+    };
+    let u64_at = |i: usize| -> Option<u64> {
+        let b: [u8; 8] = chunk.get(i..i + 8)?.try_into().ok()?;
+        Some(u64::from_le_bytes(b))
+    };
+    // 8 + 8 + 8 + 4 bytes of times, size and CRC, then the compression string.
+    let Some(name_len) = u32_at(28) else {
+        return false;
+    };
+    if name_len != 0 {
+        return false;
+    }
+    let Some(records_len) = u64_at(32) else {
+        return false;
+    };
+    let mut left = records_len;
+    let mut at = 40usize;
+    while left > 0 {
+        let Some(len) = u64_at(at + 1) else {
+            // The records end with the file (cut short): the reader stops there.
+            return false;
+        };
+        let Some(record) = len.checked_add(9).filter(|r| *r <= left) else {
+            return true;
+        };
+        left -= record;
+        at = match usize::try_from(record).ok().and_then(|r| at.checked_add(r)) {
+            Some(next) => next,
+            None => return true,
+        };
+    }
+    false
 }
 
 #[cfg(test)]
@@ -271,9 +326,14 @@ mod tests {
     /// An MCAP file written by the `mcap` crate's writer: two channels, `n` messages
     /// each, small chunks.
     fn file(n: u64) -> Vec<u8> {
+        file_with(n, Some(::mcap::Compression::Zstd))
+    }
+
+    fn file_with(n: u64, compression: Option<::mcap::Compression>) -> Vec<u8> {
         let mut out = std::io::Cursor::new(Vec::new());
         {
             let mut w = ::mcap::WriteOptions::new()
+                .compression(compression)
                 .chunk_size(Some(512))
                 .create(&mut out)
                 .expect("writer");
@@ -312,6 +372,20 @@ mod tests {
             w.finish().expect("finish");
         }
         out.into_inner()
+    }
+
+    /// Where the file's Chunk records start, walking the top-level records.
+    fn chunk_offsets(file: &[u8]) -> Vec<usize> {
+        let mut at = ::mcap::MAGIC.len();
+        let mut chunks = vec![];
+        while at + 9 <= file.len() {
+            let len = u64::from_le_bytes(file[at + 1..at + 9].try_into().expect("8 bytes"));
+            if file[at] == OP_CHUNK {
+                chunks.push(at);
+            }
+            at += 9 + len as usize;
+        }
+        chunks
     }
 
     #[test]
@@ -354,15 +428,7 @@ mod tests {
     fn a_chunk_claiming_terabytes_ends_the_file_there_instead_of_the_process() {
         let mut whole = file(50);
         // The second chunk's uncompressed size: find the chunks by walking the records.
-        let mut at = ::mcap::MAGIC.len();
-        let mut chunks = vec![];
-        while at + 9 <= whole.len() {
-            let len = u64::from_le_bytes(whole[at + 1..at + 9].try_into().expect("8 bytes"));
-            if whole[at] == OP_CHUNK {
-                chunks.push(at);
-            }
-            at += 9 + len as usize;
-        }
+        let chunks = chunk_offsets(&whole);
         assert!(chunks.len() > 2, "{} chunks", chunks.len());
         let size_at = chunks[1] + 9 + 16;
         whole[size_at..size_at + 8].copy_from_slice(&(1u64 << 42).to_le_bytes());
@@ -372,6 +438,34 @@ mod tests {
             .truncated
             .as_deref()
             .is_some_and(|t| t.contains("claims 4398046511104 bytes")));
+    }
+
+    /// Found by libFuzzer: in an uncompressed chunk, a record longer than what is left
+    /// of the chunk made the crate's reader underflow a counter (a panic in debug
+    /// builds). Such a chunk now ends the file, before the crate reads it.
+    #[test]
+    fn a_record_running_past_its_uncompressed_chunk_ends_the_file_there() {
+        let mut whole = file_with(50, None);
+        let chunks = chunk_offsets(&whole);
+        assert!(chunks.len() > 2, "{} chunks", chunks.len());
+        let body = chunks[1] + 9;
+        assert_eq!(&whole[body + 28..body + 32], &[0, 0, 0, 0], "uncompressed");
+        // The first record inside the second chunk claims 100 bytes more than its chunk.
+        let records_len = u64::from_le_bytes(whole[body + 32..body + 40].try_into().expect("8"));
+        let first = body + 40;
+        whole[first + 1..first + 9].copy_from_slice(&(records_len + 100).to_le_bytes());
+        let log = parse(&whole, &mut |_, _| {}).expect("the part before it");
+        assert!(!log.messages.is_empty());
+        assert!(
+            log.truncated
+                .as_deref()
+                .is_some_and(|t| t.contains("runs past the chunk's end")),
+            "{:?}",
+            log.truncated
+        );
+        // Undamaged, the same file reads whole.
+        let log = parse(&file_with(50, None), &mut |_, _| {}).expect("parse");
+        assert_eq!((log.messages.len(), log.truncated), (100, None));
     }
 
     #[test]
