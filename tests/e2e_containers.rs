@@ -310,15 +310,24 @@ fn build_image(podman: &Podman) {
     *built = true;
 }
 
-#[test]
-fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_stops_cleanly() {
-    if skip_requested("containers", "the compose deployment") {
-        return;
+/// The start of every container test: None when skipped, else podman checked, the
+/// other container tests waited for (held until the guard drops), the image built.
+fn container_test(what: &str) -> Option<(std::sync::MutexGuard<'static, bool>, Podman)> {
+    if skip_requested("containers", what) {
+        return None;
     }
     podman_installed();
-    let _one_stack_at_a_time = lock(&CONTAINER_TESTS);
+    let one_stack_at_a_time = lock(&CONTAINER_TESTS);
     let podman = Podman::new();
     build_image(&podman);
+    Some((one_stack_at_a_time, podman))
+}
+
+#[test]
+fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_stops_cleanly() {
+    let Some((_one_stack_at_a_time, podman)) = container_test("the compose deployment") else {
+        return;
+    };
 
     // The deployment: ports on the host chosen free; MAVLink to a UDP port on the host.
     let http_port = free_port();
@@ -488,13 +497,10 @@ fn fleet_row<'a>(f: &'a Value, name: &str) -> Option<&'a Value> {
 
 #[test]
 fn the_fleet_compose_shows_three_vehicles_across_two_routers_on_one_monitor() {
-    if skip_requested("containers", "the fleet compose deployment") {
+    let Some((_one_stack_at_a_time, podman)) = container_test("the fleet compose deployment")
+    else {
         return;
-    }
-    podman_installed();
-    let _one_stack_at_a_time = lock(&CONTAINER_TESTS);
-    let podman = Podman::new();
-    build_image(&podman);
+    };
 
     let monitor_port = free_port();
     let drone_ports = [free_port(), free_port(), free_port()];
