@@ -103,6 +103,17 @@ impl Stack<'_> {
             .expect("podman-compose")
     }
 
+    /// `up -d`; panics with podman-compose's output unless it succeeds.
+    fn up(&self) {
+        let up = self.compose(&["up", "-d"]);
+        assert!(
+            up.status.success(),
+            "podman-compose up: {}\n{}",
+            String::from_utf8_lossy(&up.stdout),
+            String::from_utf8_lossy(&up.stderr)
+        );
+    }
+
     /// podman-compose names containers <project>_<service>_1.
     fn container(&self, service: &str) -> String {
         format!("{}_{service}_1", self.project)
@@ -349,13 +360,7 @@ fn the_compose_deployment_fuses_across_containers_survives_a_router_restart_and_
             ("SKYFUSE_VEHICLE".into(), "e2e".into()),
         ],
     };
-    let up = stack.compose(&["up", "-d"]);
-    assert!(
-        up.status.success(),
-        "podman-compose up: {}\n{}",
-        String::from_utf8_lossy(&up.stdout),
-        String::from_utf8_lossy(&up.stderr)
-    );
+    stack.up();
 
     // Samples crossed from the sim's container through the router's into skyfuse's.
     let s = wait_for(
@@ -530,13 +535,7 @@ fn the_fleet_compose_shows_three_vehicles_across_two_routers_on_one_monitor() {
         env,
     };
     let started = Instant::now();
-    let up = stack.compose(&["up", "-d"]);
-    assert!(
-        up.status.success(),
-        "podman-compose up: {}\n{}",
-        String::from_utf8_lossy(&up.stdout),
-        String::from_utf8_lossy(&up.stderr)
-    );
+    stack.up();
     let up_took = started.elapsed();
     // drone1 and drone2 reach the monitor across the link between the routers.
     let names = ["drone1", "drone2", "drone3"];
