@@ -13,7 +13,7 @@
 //!
 //! Time: every sample gets a host time (`timing`): stamp + windowed-minimum clock offset
 //! − configured latency. Samples are kept in a time-ordered log together with snapshots
-//! of the whole filter core (at every IMU sample) for `history_ms`. A sample older than
+//! of the whole filter core (every 10 ms) for `history_ms`. A sample older than
 //! the newest processed one (a late measurement) is inserted into the log, the core is
 //! restored from the snapshot before it, and everything after is re-run, so the result
 //! is the same as if it had arrived in order (bit for bit: the same operations run in
@@ -108,8 +108,10 @@ pub struct Estimator {
     observed_t: Option<i64>,
 }
 
-/// Snapshot at least this often without IMU samples, µs.
-const SNAPSHOT_EVERY_US: i64 = 20_000;
+/// A snapshot of the core at most this often, µs. Any earlier snapshot re-runs to the
+/// same state, so the spacing trades the clones (the core is large: maps, series,
+/// matrices) against what a late measurement re-runs.
+const SNAPSHOT_EVERY_US: i64 = 10_000;
 
 impl Estimator {
     pub fn new(cfg: EstimatorConfig) -> Self {
@@ -231,11 +233,10 @@ impl Estimator {
         };
         for i in start..self.log.len() {
             let e = &self.log[i];
-            let snap = e.key.rank == 0
-                || self
-                    .snaps
-                    .back()
-                    .is_none_or(|(k, _)| e.key.t - k.t >= SNAPSHOT_EVERY_US);
+            let snap = self
+                .snaps
+                .back()
+                .is_none_or(|(k, _)| e.key.t - k.t >= SNAPSHOT_EVERY_US);
             if snap {
                 self.snaps.push_back((e.key.clone(), self.core.clone()));
             }
