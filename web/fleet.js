@@ -20,7 +20,8 @@ function apply(view) {
   for (const v of view.vehicles) {
     seen.add(v.id);
     const old = state.vehicles.get(v.id);
-    let track = old ? old.track : [];
+    // A track lives in one frame: a vehicle that gains a GNSS origin starts a new one.
+    let track = old && old.frame === v.frame ? old.track : [];
     if (v.track) track = v.track.slice(-TRACK_MAX);
     else if (v.xy) {
       const last = track[track.length - 1];
@@ -49,7 +50,7 @@ function rowHtml(v) {
   const heard = v.heard_s_ago < 1.5 ? "" : ` <span class="muted small">${v.heard_s_ago.toFixed(0)} s ago</span>`;
   const link = v.zenoh ? `<span class="muted small">${v.zenoh.routers} routers · ${v.zenoh.peers} peers</span>` : "";
   let est = "—";
-  if (v.valid === true) est = tag("t-ok", "valid") + (v.position_std_m != null ? ` <span class="muted small">σ ${v.position_std_m.toFixed(2)} m</span>` : "");
+  if (v.valid === true) est = tag("t-ok", "valid") + (v.position_std_m != null ? ` <span class="muted small nw">σ ${v.position_std_m.toFixed(2)} m</span>` : "");
   else if (v.valid === false) est = tag("t-bad", "invalid", v.invalid_reason) + ` <span class="small">${esc(v.invalid_reason)}</span>`;
   const worst = v.worst_health;
   const wcls = worst === "ok" ? "t-ok" : worst === "degraded" ? "t-warn" : worst ? "t-bad" : "t-grey";

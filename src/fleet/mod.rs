@@ -141,6 +141,8 @@ struct Vehicle {
     restarts: u32,
     track: VecDeque<[f64; 2]>,
     last_track_us: Option<Micros>,
+    /// The frame the track is in (`geo`/`local` and the vehicle's origin).
+    track_frame: Option<(&'static str, Option<GeoIn>)>,
 }
 
 /// The last event a vehicle published.
@@ -263,6 +265,7 @@ impl Fleet {
                     restarts: 0,
                     track: VecDeque::new(),
                     last_track_us: None,
+                    track_frame: None,
                 },
             );
         }
@@ -373,9 +376,18 @@ impl Fleet {
                             self.reference = Some((o, LocalEnu::new(o.lat, o.lon, o.alt)));
                         }
                     }
-                    let (xy, _) = self.map_position(&p);
+                    let (xy, frame) = self.map_position(&p);
                     let max_points = self.cfg.track_points;
                     if let Some(v) = self.vehicles.get_mut(&id) {
+                        // A track lives in one frame: a vehicle that gains a GNSS origin
+                        // (or gets a new one, after a restart) starts a new track rather
+                        // than drawing a line across the map from its old frame.
+                        let track_frame = (frame, p.origin);
+                        if v.track_frame != Some(track_frame) {
+                            v.track.clear();
+                            v.last_track_us = None;
+                            v.track_frame = Some(track_frame);
+                        }
                         if v.last_track_us.is_none_or(|t| now - t >= TRACK_INTERVAL_US) {
                             v.last_track_us = Some(now);
                             v.track.push_back(xy);

@@ -277,3 +277,38 @@ fn bad_payloads_are_counted_and_change_nothing() {
         .unwrap();
     assert_eq!(f.refresh(S).len(), 1);
 }
+
+#[test]
+fn a_vehicle_that_gains_a_gnss_origin_starts_a_new_track() {
+    let mut f = fleet();
+    f.accept(
+        "skyfuse/a",
+        POSE,
+        &pose(0.0, 0.0, 0.0, Some((47.0, 8.0))),
+        0,
+    )
+    .unwrap();
+    f.refresh(0);
+    // b first has no origin (its own frame), then one 100 m further north.
+    f.accept("skyfuse/b", POSE, &pose(1.0, 1.0, 0.0, None), 0)
+        .unwrap();
+    f.refresh(0);
+    f.accept(
+        "skyfuse/b",
+        POSE,
+        &pose(1.0, 1.0, 0.0, Some((47.0009, 8.0))),
+        2 * S,
+    )
+    .unwrap();
+    f.refresh(2 * S);
+    let v = f.view(2 * S, true);
+    let b = row(&v, "skyfuse/b");
+    assert_eq!(b.frame, Some("geo"));
+    let track = b.track.clone().unwrap();
+    assert_eq!(
+        track.len(),
+        1,
+        "the local point is not joined to the geo one: {track:?}"
+    );
+    assert!(track[0][1] > 90.0, "{track:?}");
+}

@@ -165,7 +165,16 @@ fn read_records(
                 }
                 continue;
             }
-            Ok(LinearReadEvent::Record { data, opcode }) => ::mcap::parse_record(opcode, data),
+            // Only the records read here are parsed: the crate's parsers of the others
+            // (attachments, metadata, indexes, statistics) never see a damaged file
+            // (libFuzzer's third finding: a short Attachment record panics one of them).
+            Ok(LinearReadEvent::Record { data, opcode }) => {
+                use ::mcap::records::op;
+                if !matches!(opcode, op::SCHEMA | op::CHANNEL | op::MESSAGE) {
+                    continue;
+                }
+                ::mcap::parse_record(opcode, data)
+            }
             Err(e) => {
                 stop = Some(e.to_string());
                 break;
@@ -496,7 +505,7 @@ mod tests {
             );
             n += 1;
         }
-        assert!(n >= 2);
+        assert!(n >= 3);
     }
 
     #[test]
