@@ -78,10 +78,7 @@ pub async fn run_with(
 ) -> Result<(), RunError> {
     let config = Arc::new(config);
     // HTTPS: a bad certificate or key fails the start, naming the file.
-    let tls = match config.http.tls() {
-        Some((cert, key)) => Some(crate::http::tls::server_config(cert, key)?),
-        None => None,
-    };
+    let tls = crate::http::tls::configured(&config.http)?;
     let ingest = Arc::new(Ingest::new(&config));
     let (tx, rx) = mpsc::channel::<Sample>(config.ingest.channel_capacity);
     let session = listeners.zenoh;
@@ -361,10 +358,7 @@ pub async fn monitor(
     listeners: Listeners,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), RunError> {
-    let tls = match config.http.tls() {
-        Some((cert, key)) => Some(crate::http::tls::server_config(cert, key)?),
-        None => None,
-    };
+    let tls = crate::http::tls::configured(&config.http)?;
     let session = listeners.zenoh;
     let fleet = FleetWatch::new(session.clone(), config.fleet.clone(), true);
     let fleet_task = tokio::spawn(fleet.clone().run());

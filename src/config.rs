@@ -585,15 +585,18 @@ impl Config {
         if non_empty(&self.http.tls_cert).is_some() != non_empty(&self.http.tls_key).is_some() {
             return Err("[http] tls_cert and tls_key go together (HTTPS needs both)".into());
         }
-        let r = &self.record;
-        for (name, v) in [
-            ("max_file_mb", r.max_file_mb),
-            ("max_file_s", r.max_file_s),
-            ("chunk_kb", r.chunk_kb),
+        let (r, f) = (&self.record, &self.fleet);
+        for (section, name, v) in [
+            ("record", "max_file_mb", r.max_file_mb),
+            ("record", "max_file_s", r.max_file_s),
+            ("record", "chunk_kb", r.chunk_kb),
+            ("fleet", "stale_after_s", f.stale_after_s),
+            ("fleet", "gone_after_s", f.gone_after_s),
+            ("fleet", "forget_after_s", f.forget_after_s),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(format!(
-                    "[record] {name} must be a positive number, not {v}"
+                    "[{section}] {name} must be a positive number, not {v}"
                 ));
             }
         }
@@ -611,21 +614,11 @@ impl Config {
                 ));
             }
         }
-        let f = &self.fleet;
         if let Err(e) = zenoh::key_expr::KeyExpr::try_from(f.watch.as_str()) {
             return Err(format!(
                 "[fleet] watch {:?} is not a valid Zenoh key expression: {e}",
                 f.watch
             ));
-        }
-        for (name, v) in [
-            ("stale_after_s", f.stale_after_s),
-            ("gone_after_s", f.gone_after_s),
-            ("forget_after_s", f.forget_after_s),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("[fleet] {name} must be a positive number, not {v}"));
-            }
         }
         if !(f.stale_after_s <= f.gone_after_s && f.gone_after_s <= f.forget_after_s) {
             return Err("[fleet] needs stale_after_s <= gone_after_s <= forget_after_s".into());

@@ -33,30 +33,11 @@ fn vehicle(monitor: &Service, n: u32) -> Service {
     )
 }
 
-fn fleet(svc: &Service) -> serde_json::Value {
-    svc.get_json("/api/v1/fleet")
-}
-
 fn row<'a>(fleet: &'a serde_json::Value, name: &str) -> Option<&'a serde_json::Value> {
     fleet["vehicles"]
         .as_array()?
         .iter()
         .find(|v| v["name"] == name)
-}
-
-fn wait_fleet(
-    svc: &Service,
-    timeout: Duration,
-    done: impl Fn(&serde_json::Value) -> bool,
-) -> serde_json::Value {
-    let start = Instant::now();
-    loop {
-        let f = fleet(svc);
-        if done(&f) || start.elapsed() > timeout {
-            return f;
-        }
-        std::thread::sleep(Duration::from_millis(250));
-    }
 }
 
 /// The page driver: one JSON line per step, the next step after a line on its stdin.
@@ -170,7 +151,7 @@ fn three_vehicles_on_one_monitor_page_one_goes_grey_a_fourth_joins_and_a_restart
     }
     assert!(s1["stats"]["frames"].as_u64().unwrap_or(0) >= 1, "{s1}");
     // The monitor's API agrees, and each vehicle says where its dashboard is.
-    let f = wait_fleet(&monitor, Duration::from_secs(30), |f| {
+    let f = monitor.wait_json("/api/v1/fleet", Duration::from_secs(30), |f| {
         ["drone1", "drone2", "drone3"]
             .iter()
             .all(|n| row(f, n).is_some_and(|r| r["valid"] == true && r["worst_health"] == "ok"))
@@ -216,7 +197,7 @@ fn three_vehicles_on_one_monitor_page_one_goes_grey_a_fourth_joins_and_a_restart
     let s4 = page.step();
     assert_eq!(page_row(&s4, "drone3")["colour"], colour3, "{s4}");
     // Its health (once a second) carries the new start time: one restart.
-    let f = wait_fleet(&monitor, Duration::from_secs(10), |f| {
+    let f = monitor.wait_json("/api/v1/fleet", Duration::from_secs(10), |f| {
         row(f, "drone3").is_some_and(|r| r["restarts"] == 1)
     });
     let r3 = row(&f, "drone3").expect("drone3");
@@ -248,7 +229,7 @@ fn a_vehicles_own_page_shows_the_fleet_and_bad_payloads_are_counted_not_shown() 
     let d1 = vehicle(&monitor, 1);
     // A vehicle's own /api/v1/fleet (its namespace's vehicles: itself here). It starts
     // watching at the first request.
-    let f = wait_fleet(&d1, Duration::from_secs(30), |f| {
+    let f = d1.wait_json("/api/v1/fleet", Duration::from_secs(30), |f| {
         row(f, "drone1").is_some_and(|r| r["version"].is_string() && r["valid"] == true)
     });
     let r = row(&f, "drone1").unwrap_or_else(|| panic!("{f}"));
@@ -272,7 +253,7 @@ fn a_vehicles_own_page_shows_the_fleet_and_bad_payloads_are_counted_not_shown() 
     );
     let load: serde_json::Value = serde_json::from_str(out.trim()).expect("json");
     assert_eq!(load["messages"]["bad"], 18, "{load}");
-    let f = wait_fleet(&monitor, Duration::from_secs(10), |f| {
+    let f = monitor.wait_json("/api/v1/fleet", Duration::from_secs(10), |f| {
         f["counters"]["rejected"].as_u64().unwrap_or(0) >= 12
     });
     // Health and events are read on arrival; poses at the next refresh, the newest only.
@@ -293,7 +274,7 @@ fn a_vehicles_own_page_shows_the_fleet_and_bad_payloads_are_counted_not_shown() 
         "{f}"
     );
     // The stand-ins dropped their tokens when they ended: grey.
-    let f = wait_fleet(&monitor, Duration::from_secs(10), |f| {
+    let f = monitor.wait_json("/api/v1/fleet", Duration::from_secs(10), |f| {
         row(f, "v00").is_some_and(|r| r["presence"] == "gone")
     });
     assert_eq!(

@@ -411,7 +411,7 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             let mut c = load(config.as_deref(), &net)?;
             record.apply(&mut c)?;
             add_mavlink(&mut c, &mavlink)?;
-            serve(c, app::shutdown_signal()).await
+            serve(c, Serve::Vehicle).await
         }
         Command::Demo {
             net,
@@ -422,17 +422,7 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             no_browser,
         } => demo(net, record, mavlink, seed, home, no_browser).await,
         Command::Monitor { config, net } => {
-            let c = load(config.as_deref(), &net)?;
-            let http = tokio::net::TcpListener::bind(&c.http.bind)
-                .await
-                .map_err(|e| format!("cannot listen for HTTP on {}: {e}", c.http.bind))?;
-            let mut shutdown = Box::pin(app::shutdown_signal());
-            let Some(zenoh) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
-                return Ok(());
-            };
-            app::monitor(c, Listeners { http, zenoh }, shutdown)
-                .await
-                .map_err(|e| e.to_string())
+            serve(load(config.as_deref(), &net)?, Serve::Monitor).await
         }
         Command::Sim { list: true, .. } => {
             for (name, description) in scenario::NAMES {
@@ -509,20 +499,30 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
     }
 }
 
-async fn serve(
-    c: Config,
-    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
-) -> Result<(), String> {
+/// What `serve` runs once its listeners are open.
+enum Serve {
+    /// The service (`skyfuse run`).
+    Vehicle,
+    /// The fleet view alone (`skyfuse monitor`).
+    Monitor,
+}
+
+/// Bind HTTP, open Zenoh (or stop cleanly if a signal comes first), then run until a
+/// signal.
+async fn serve(c: Config, what: Serve) -> Result<(), String> {
     let http = tokio::net::TcpListener::bind(&c.http.bind)
         .await
         .map_err(|e| format!("cannot listen for HTTP on {}: {e}", c.http.bind))?;
-    let mut shutdown = Box::pin(shutdown);
+    let mut shutdown = Box::pin(app::shutdown_signal());
     let Some(zenoh) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
         return Ok(());
     };
-    app::run(c, Listeners { http, zenoh }, shutdown)
-        .await
-        .map_err(|e| e.to_string())
+    let listeners = Listeners { http, zenoh };
+    match what {
+        Serve::Vehicle => app::run(c, listeners, shutdown).await,
+        Serve::Monitor => app::monitor(c, listeners, shutdown).await,
+    }
+    .map_err(|e| e.to_string())
 }
 
 /// Open the Zenoh session, or give up cleanly if a shutdown signal comes first: a client

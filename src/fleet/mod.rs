@@ -135,6 +135,9 @@ struct Vehicle {
     /// The newest pose payload, parsed at the next refresh.
     pose_pending: Option<Vec<u8>>,
     pose: Option<PoseIn>,
+    /// Where `pose` is on the map: east/north and the frame (see `map_position`),
+    /// computed once when the pose is read.
+    placed: Option<([f64; 2], &'static str)>,
     health: Option<HealthIn>,
     last_event: Option<EventView>,
     started_us: Option<i64>,
@@ -259,6 +262,7 @@ impl Fleet {
                     token_lost_us: None,
                     pose_pending: None,
                     pose: None,
+                    placed: None,
                     health: None,
                     last_event: None,
                     started_us: None,
@@ -396,6 +400,7 @@ impl Fleet {
                             }
                         }
                         v.pose = Some(p);
+                        v.placed = Some((xy, frame));
                     }
                 }
                 Err(message) => {
@@ -470,7 +475,7 @@ impl Fleet {
             .collect();
         let vpe = v.health.as_ref().and_then(|h| h.vpe.as_ref());
         let pose = v.pose.as_ref();
-        let placed = pose.map(|p| self.map_position(p));
+        let placed = v.placed;
         VehicleView {
             id: id.to_string(),
             name: service.map_or_else(
@@ -508,18 +513,6 @@ impl Fleet {
             speed_m_s: pose.map(|p| Vector3::from(p.velocity).norm()),
             track: with_tracks.then(|| v.track.iter().copied().collect()),
         }
-    }
-
-    pub fn len(&self) -> usize {
-        self.vehicles.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.vehicles.is_empty()
-    }
-
-    pub fn counters(&self) -> FleetCounters {
-        self.counters
     }
 }
 

@@ -18,7 +18,7 @@ use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
-use std::sync::atomic::{AtomicI64, AtomicU64, Ordering::Relaxed};
+use std::sync::atomic::{AtomicI64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::watch;
@@ -39,15 +39,10 @@ pub struct FleetWatch {
     /// Watch regardless of lookers (`skyfuse monitor`).
     always: bool,
     last_look_us: AtomicI64,
-    subscribers: tokio::sync::Mutex<Vec<Subscription>>,
+    /// The data subscribers and the liveliness one, while watching.
+    subscribers: tokio::sync::Mutex<Vec<zenoh::pubsub::Subscriber<()>>>,
     frames: watch::Sender<Arc<str>>,
     last_warn_us: Arc<AtomicI64>,
-    pub frames_sent: AtomicU64,
-}
-
-enum Subscription {
-    Data(zenoh::pubsub::Subscriber<()>),
-    Liveliness(zenoh::pubsub::Subscriber<()>),
 }
 
 impl FleetWatch {
@@ -62,7 +57,6 @@ impl FleetWatch {
             subscribers: tokio::sync::Mutex::new(Vec::new()),
             frames: watch::channel(Arc::from("")).0,
             last_warn_us: Arc::new(AtomicI64::new(i64::MIN / 2)),
-            frames_sent: AtomicU64::new(0),
         })
     }
 
@@ -77,19 +71,26 @@ impl FleetWatch {
             || now - self.last_look_us.load(Relaxed) < IDLE_AFTER.as_micros() as i64
     }
 
-    /// The view now (refreshed first), with the tracks.
+    /// The view now, with the tracks.
     pub fn view(&self) -> FleetView {
         let now = now_us();
-        let mut f = crate::sync::lock(&self.fleet);
-        self.warn(f.refresh(now));
-        FleetView {
-            monitor: self.always,
-            ..f.view(now, true)
-        }
+        let f = self.refreshed(now);
+        self.view_of(&f, now, true)
     }
 
-    fn warn(&self, errors: Vec<super::FleetInputError>) {
+    /// The fleet, locked, its pending poses read (unreadable ones logged, limited).
+    fn refreshed(&self, now: i64) -> std::sync::MutexGuard<'_, Fleet> {
+        let mut f = crate::sync::lock(&self.fleet);
+        let errors = f.refresh(now);
         warn_limited(&self.last_warn_us, errors.iter().map(|e| e.to_string()));
+        f
+    }
+
+    fn view_of(&self, f: &Fleet, now: i64, with_tracks: bool) -> FleetView {
+        FleetView {
+            monitor: self.always,
+            ..f.view(now, with_tracks)
+        }
     }
 
     /// Refreshes and publishes the view while wanted; subscribes and unsubscribes as
@@ -111,24 +112,14 @@ impl FleetWatch {
             if !wanted {
                 continue;
             }
+            // The state stays current (tracks) while watched; text only for streams.
+            let f = self.refreshed(now);
             if self.frames.receiver_count() == 0 {
-                // Nobody streams: keep the state current (tracks) without building text.
-                let errors = crate::sync::lock(&self.fleet).refresh(now);
-                self.warn(errors);
                 continue;
             }
-            let text = {
-                let mut f = crate::sync::lock(&self.fleet);
-                let errors = f.refresh(now);
-                self.warn(errors);
-                let view = FleetView {
-                    monitor: self.always,
-                    ..f.view(now, false)
-                };
-                serde_json::to_string(&view).unwrap_or_default()
-            };
+            let text = serde_json::to_string(&self.view_of(&f, now, false)).unwrap_or_default();
+            drop(f);
             self.frames.send_replace(Arc::from(text));
-            self.frames_sent.fetch_add(1, Relaxed);
         }
     }
 
@@ -154,7 +145,7 @@ impl FleetWatch {
                 })
                 .await;
             match sub {
-                Ok(s) => subs.push(Subscription::Data(s)),
+                Ok(s) => subs.push(s),
                 Err(e) => tracing::warn!(key, "fleet view: cannot subscribe: {e}"),
             }
         }
@@ -177,7 +168,7 @@ impl FleetWatch {
             })
             .await;
         match tokens {
-            Ok(s) => subs.push(Subscription::Liveliness(s)),
+            Ok(s) => subs.push(s),
             Err(e) => tracing::warn!(key, "fleet view: cannot watch liveliness: {e}"),
         }
         tracing::info!(watch, "fleet view: watching");
@@ -185,17 +176,11 @@ impl FleetWatch {
 
     async fn unsubscribe(&self) {
         for s in self.subscribers.lock().await.drain(..) {
-            let (Subscription::Data(s) | Subscription::Liveliness(s)) = s;
             if let Err(e) = s.undeclare().await {
                 tracing::warn!("fleet view: undeclaring: {e}");
             }
         }
         tracing::info!("fleet view: nobody looking, stopped watching");
-    }
-
-    /// Vehicles known now (for the status).
-    pub fn vehicles(&self) -> usize {
-        crate::sync::lock(&self.fleet).len()
     }
 }
 

@@ -33,6 +33,15 @@ pub enum TlsError {
     },
 }
 
+/// The server config for `[http]`: None for plain HTTP (no certificate configured).
+pub fn configured(
+    http: &crate::config::HttpConfig,
+) -> Result<Option<Arc<rustls::ServerConfig>>, TlsError> {
+    http.tls()
+        .map(|(cert, key)| server_config(cert, key))
+        .transpose()
+}
+
 /// The rustls server config from PEM files: the certificate chain (leaf first) and its
 /// private key. HTTP/1.1 only, as the server speaks.
 pub fn server_config(cert: &str, key: &str) -> Result<Arc<rustls::ServerConfig>, TlsError> {

@@ -168,9 +168,20 @@ impl Service {
         timeout: Duration,
         done: impl Fn(&serde_json::Value) -> bool,
     ) -> serde_json::Value {
+        self.wait_json("/api/v1/status", timeout, done)
+    }
+
+    /// Poll a JSON endpoint until `done` holds or the timeout passes; returns the last
+    /// answer.
+    pub fn wait_json(
+        &self,
+        path: &str,
+        timeout: Duration,
+        done: impl Fn(&serde_json::Value) -> bool,
+    ) -> serde_json::Value {
         let start = Instant::now();
         loop {
-            let s = self.get_json("/api/v1/status");
+            let s = self.get_json(path);
             if done(&s) || start.elapsed() > timeout {
                 return s;
             }

@@ -94,8 +94,8 @@ pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> Result<McapLog
             "it does not start with MCAP's magic bytes".into(),
         ));
     }
-    // A chunk whose header claims more than any real one holds ends the file there.
-    let (bytes, oversized) = cut_at_oversized_chunk(bytes);
+    // A damaged chunk (too large, or records running past it) ends the file there.
+    let (bytes, damaged) = cut_at_damaged_chunk(bytes);
     let total = bytes.len() as u64;
     let mut log = McapLog::default();
     // The `mcap` crate's reader can still panic on a damaged file (0.26: a record longer
@@ -117,7 +117,7 @@ pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> Result<McapLog
         }
     };
     progress(total, total);
-    if let Some(why) = stop.or(oversized) {
+    if let Some(why) = stop.or(damaged) {
         if log.messages.is_empty() {
             return Err(ParseError::Empty(why));
         }
@@ -237,22 +237,26 @@ pub const MAX_CHUNK_UNCOMPRESSED: u64 = 256 * 1024 * 1024;
 
 const OP_CHUNK: u8 = 0x06;
 
-/// `bytes` up to the first chunk record claiming more than [`MAX_CHUNK_UNCOMPRESSED`]
-/// bytes uncompressed, and why it was cut. Walks the top-level records (opcode, u64
-/// length, body); a Chunk body starts with start time, end time, uncompressed size.
-fn cut_at_oversized_chunk(bytes: &[u8]) -> (&[u8], Option<String>) {
+/// The little-endian u64 at `at`, if `bytes` holds it.
+fn le_u64(bytes: &[u8], at: usize) -> Option<u64> {
+    Some(u64::from_le_bytes(
+        bytes.get(at..at.checked_add(8)?)?.try_into().ok()?,
+    ))
+}
+
+/// `bytes` up to the first damaged chunk record, and why it was cut: one claiming more
+/// than [`MAX_CHUNK_UNCOMPRESSED`] bytes uncompressed, or an uncompressed one whose
+/// records do not fit it (see [`uncompressed_records_overrun`]). Walks the top-level
+/// records (opcode, u64 length, body); a Chunk body starts with start time, end time,
+/// uncompressed size.
+fn cut_at_damaged_chunk(bytes: &[u8]) -> (&[u8], Option<String>) {
     let mut at = ::mcap::MAGIC.len();
-    while let Some(head) = bytes.get(at..at + 9) {
-        let op = head[0];
-        let mut len = [0u8; 8];
-        len.copy_from_slice(&head[1..9]);
-        let len = u64::from_le_bytes(len);
+    while let (Some(&op), Some(len)) = (bytes.get(at), le_u64(bytes, at + 1)) {
         let body = at + 9;
+        let declared_end = usize::try_from(len).ok().and_then(|l| body.checked_add(l));
+        let complete = declared_end.is_some_and(|e| e <= bytes.len());
         if op == OP_CHUNK {
-            if let Some(size) = bytes.get(body + 16..body + 24) {
-                let mut s = [0u8; 8];
-                s.copy_from_slice(size);
-                let size = u64::from_le_bytes(s);
+            if let Some(size) = le_u64(bytes, body + 16) {
                 if size > MAX_CHUNK_UNCOMPRESSED {
                     return (
                         &bytes[..at],
@@ -262,8 +266,6 @@ fn cut_at_oversized_chunk(bytes: &[u8]) -> (&[u8], Option<String>) {
                     );
                 }
             }
-            let declared_end = usize::try_from(len).ok().and_then(|l| body.checked_add(l));
-            let complete = declared_end.is_some_and(|e| e <= bytes.len());
             let end = declared_end.map_or(bytes.len(), |e| e.min(bytes.len()));
             if uncompressed_records_overrun(&bytes[body.min(end)..end], complete) {
                 return (
@@ -274,8 +276,8 @@ fn cut_at_oversized_chunk(bytes: &[u8]) -> (&[u8], Option<String>) {
                 );
             }
         }
-        match usize::try_from(len).ok().and_then(|l| body.checked_add(l)) {
-            Some(next) if next <= bytes.len() => at = next,
+        match declared_end {
+            Some(next) if complete => at = next,
             _ => break,
         }
     }
@@ -293,10 +295,7 @@ fn uncompressed_records_overrun(chunk: &[u8], complete: bool) -> bool {
         let b: [u8; 4] = chunk.get(i..i + 4)?.try_into().ok()?;
         usize::try_from(u32::from_le_bytes(b)).ok()
     };
-    let u64_at = |i: usize| -> Option<u64> {
-        let b: [u8; 8] = chunk.get(i..i + 8)?.try_into().ok()?;
-        Some(u64::from_le_bytes(b))
-    };
+    let u64_at = |i: usize| le_u64(chunk, i);
     // 8 + 8 + 8 + 4 bytes of times, size and CRC, then the compression string.
     let Some(name_len) = u32_at(28) else {
         return false;
