@@ -72,7 +72,7 @@ impl Fusion {
             return vec![];
         }
         self.last_eval_us = Some(now_us);
-        self.est.observe_time(now_us);
+        let mut events = self.est.observe_time(now_us);
         if self
             .last_status_us
             .is_none_or(|l| now_us < l || now_us - l >= 100_000)
@@ -81,7 +81,6 @@ impl Fusion {
             let st = self.est.state_summary();
             self.health.on_estimator(&st, now_us);
         }
-        let mut events = Vec::new();
         for tr in self.health.evaluate(now_us) {
             events.push(transition_event(&tr));
             if tr.sensor != crate::health::ESTIMATOR_ID {

@@ -133,7 +133,7 @@ impl Ekf {
         dt: f64,
         accel_var: f64,
         bias_rw: f64,
-        drift_rw: &[f64],
+        drift_rw: impl Fn(&str) -> f64,
     ) {
         if dt <= 0.0 {
             return;
@@ -180,8 +180,8 @@ impl Ekf {
         for i in 0..3 {
             next[(IDX_BG + i, IDX_BG + i)] += self.gnss_bias_std[i].powi(2) * (1.0 - phi * phi);
         }
-        for (k, &(_, idx)) in self.blocks.iter().enumerate() {
-            let rw = drift_rw.get(k).copied().unwrap_or(0.0);
+        for (source, idx) in &self.blocks {
+            let (rw, idx) = (drift_rw(source), *idx);
             for i in 0..3 {
                 next[(idx + i, idx + i)] += rw * rw * dt;
             }
@@ -546,7 +546,7 @@ mod tests {
         ekf.gnss_bias_tau_s = 30.0;
         let rot = *nalgebra::Rotation3::from_euler_angles(0.1, -0.2, 0.7).matrix();
         let dt = 0.005;
-        ekf.predict(Vector3::new(0.3, -0.1, 9.9), &rot, dt, 0.0, 0.0, &[0.0]);
+        ekf.predict(Vector3::new(0.3, -0.1, 9.9), &rot, dt, 0.0, 0.0, |_| 0.0);
 
         let mut f = DMatrix::identity(n, n);
         for i in 0..3 {
@@ -591,7 +591,7 @@ mod tests {
             1.0,
             0.0,
             0.0,
-            &[],
+            |_| 0.0,
         );
         assert!((ekf.p[(0, 0)] - 5.0).abs() < 1e-12);
         assert!((ekf.p[(0, 3)] - 1.0).abs() < 1e-12);
@@ -630,7 +630,7 @@ mod tests {
                 0.1,
                 0.5,
                 0.0,
-                &[],
+                |_| 0.0,
             );
             let y = dvec(&[z - ekf.x[0]]);
             ekf.update(&y, &h, &(DMatrix::identity(1, 1) * 0.25), 1e9, false);
@@ -706,7 +706,7 @@ mod tests {
                 0.01,
                 1e-4,
                 1e-3,
-                &[0.01],
+                |_| 0.01,
             );
             let y = dvec(&[0.01, 0.0, 0.0]);
             ekf.update(&y, &h, &dmat3(&(Matrix3::identity() * 1e-4)), 1e9, false);

@@ -20,7 +20,6 @@ pub struct ImuInput {
     pub accel: Option<Vector3<f64>>,
     /// Specific-force variance per axis for one sample, (m/s²)².
     pub accel_var: f64,
-    pub source: String,
 }
 
 /// First-order low-pass of a vector (seed 001's LPF_1_, with the proper 2π).
@@ -138,7 +137,6 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
         gyro: imu.gyro,
         accel: imu.accel,
         accel_var: accel_var(imu, dt, cfg),
-        source: source.to_string(),
     });
     core.mark_used(t, source);
 }

@@ -12,12 +12,17 @@
 //! [`Estimator`] facade (time-ordered log, snapshots, late measurements).
 //!
 //! Time: every sample gets a host time (`timing`): stamp + windowed-minimum clock offset
-//! − configured latency. Samples are kept in a time-ordered log together with snapshots
-//! of the whole filter core (every 10 ms) for `history_ms`. A sample older than
-//! the newest processed one (a late measurement) is inserted into the log, the core is
-//! restored from the snapshot before it, and everything after is re-run, so the result
-//! is the same as if it had arrived in order (bit for bit: the same operations run in
-//! the same order). Events of re-run samples are emitted once.
+//! − configured latency. The filter runs on a delayed time horizon, as PX4's EKF2 does:
+//! samples wait in a time-ordered log and are fused when the horizon reaches them, so a
+//! measurement that arrives late (a GNSS fix ~100 ms after the IMU of the same moment)
+//! takes its place in the log and costs one update. The horizon lags the newest sample
+//! by the largest lateness seen recently ([`Lateness`], at most [`MAX_HORIZON_US`]);
+//! with every source on time it is zero. The [`output`] predictor brings the state at
+//! the horizon to the present with the IMU samples ahead of it, so the pose sent is of
+//! now. A sample later still (older than what the filter has fused) restores the
+//! snapshot of the whole core before it (kept every 10 ms for `history_ms`) and re-runs
+//! from there, so the result is the same as if it had arrived in order (bit for bit: the
+//! same operations run in the same order). Events of re-run samples are emitted once.
 //!
 //! Modes: `ekf` (default), `wrls`, `wrls+ekf` (the WRLS position as the EKF's only
 //! position measurement, seed 002's layout). Measured on the simulator (300 s of
@@ -36,6 +41,7 @@ mod ground;
 mod imu;
 pub mod monitor;
 mod odometry;
+mod output;
 mod range;
 mod state;
 mod status;
@@ -49,6 +55,7 @@ use crate::event;
 use crate::sample::{Sample, SensorData, SensorKind};
 use ekf::{IDX_P, IDX_V};
 use nalgebra::{Matrix3, Vector3};
+use output::{Base, OutputPredictor};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 use timing::ClockMap;
@@ -86,14 +93,59 @@ struct Key {
 struct Entry {
     key: Key,
     data: SensorData,
-    processed: bool,
+    /// The health layer's verdict on the source when the sample arrived: the sample is
+    /// judged by it whenever the horizon reaches it (and again on a re-run).
+    usable: bool,
+}
+
+/// The horizon never lags the present by more than this, µs: a source later than this
+/// is fused by a re-run from a snapshot instead of holding every output back.
+pub const MAX_HORIZON_US: i64 = 250_000;
+/// A source's lateness is its largest over the current and the previous window this
+/// long (µs, of sample time), so the horizon comes back down when a late source stops
+/// being late.
+const LATENESS_WINDOW_US: i64 = 2_000_000;
+
+/// How late one source's samples arrive: the newest sample time already seen minus
+/// theirs, its maximum over two windows.
+#[derive(Debug, Clone, Default)]
+struct Lateness {
+    window_start: i64,
+    current: i64,
+    previous: i64,
+}
+
+impl Lateness {
+    fn observe(&mut self, now: i64, late_by: i64) {
+        if now - self.window_start >= LATENESS_WINDOW_US || now < self.window_start {
+            self.previous = if now - self.window_start < 2 * LATENESS_WINDOW_US {
+                self.current
+            } else {
+                0
+            };
+            self.current = 0;
+            self.window_start = now;
+        }
+        self.current = self.current.max(late_by);
+    }
+
+    fn peak(&self) -> i64 {
+        self.current.max(self.previous)
+    }
 }
 
 /// The estimator facade.
 pub struct Estimator {
     cfg: EstimatorConfig,
     core: Core,
+    /// Samples in time order: the first `fused` have been fused, the rest wait for the
+    /// horizon.
     log: VecDeque<Entry>,
+    fused: usize,
+    /// The newest sample time seen (the present, host clock).
+    newest_t: Option<i64>,
+    lateness: BTreeMap<Arc<str>, Lateness>,
+    output: OutputPredictor,
     snaps: VecDeque<(Key, Core)>,
     clocks: BTreeMap<String, ClockMap>,
     usable: BTreeMap<String, (bool, String)>,
@@ -111,7 +163,7 @@ pub struct Estimator {
 /// A snapshot of the core at most this often, µs. Any earlier snapshot re-runs to the
 /// same state, so the spacing trades the clones (the core is large: maps, series,
 /// matrices) against what a late measurement re-runs.
-const SNAPSHOT_EVERY_US: i64 = 10_000;
+const SNAPSHOT_EVERY_US: i64 = 50_000;
 
 impl Estimator {
     pub fn new(cfg: EstimatorConfig) -> Self {
@@ -121,8 +173,12 @@ impl Estimator {
         }
         Self {
             core: Core::new(&cfg),
-            cfg,
             log: VecDeque::new(),
+            fused: 0,
+            newest_t: None,
+            lateness: BTreeMap::new(),
+            output: OutputPredictor::new((cfg.imu_timeout_ms * 1000.0) as i64),
+            cfg,
             snaps: VecDeque::new(),
             clocks: BTreeMap::new(),
             usable: BTreeMap::new(),
@@ -138,14 +194,29 @@ impl Estimator {
 
     /// Time has reached `now_us` (host clock) whether or not samples came: validity is
     /// judged at this time, so an estimate whose sources all went silent (a lost Zenoh
-    /// link) turns invalid after `aiding_timeout_ms` instead of staying valid, frozen.
-    /// The state is not touched; the next sample predicts across the gap as always.
-    pub fn observe_time(&mut self, now_us: i64) {
+    /// link) turns invalid after `aiding_timeout_ms` instead of staying valid, frozen;
+    /// and the horizon moves on, so samples waiting for it are fused.
+    pub fn observe_time(&mut self, now_us: i64) -> Vec<EstimatorEvent> {
         self.observed_t = Some(now_us);
+        let limit = now_us.saturating_sub(self.horizon_us());
+        let out = self.run_to(limit, None);
+        self.prune();
+        out
     }
 
     pub fn config(&self) -> &EstimatorConfig {
         &self.cfg
+    }
+
+    /// How far behind the newest sample the filter fuses, µs.
+    pub fn horizon_us(&self) -> i64 {
+        let max = MAX_HORIZON_US.min((self.cfg.history_ms * 500.0) as i64);
+        self.lateness
+            .values()
+            .map(Lateness::peak)
+            .max()
+            .unwrap_or(0)
+            .clamp(0, max.max(0))
     }
 
     /// Feed one sample; returns the events it caused.
@@ -161,13 +232,13 @@ impl Estimator {
         let latency = self.cfg.latency_us(src, kind);
         let window = (self.cfg.clock_window_s * 1e6) as i64;
         let jump = (self.cfg.clock_jump_s * 1e6) as i64;
-        let t = self.clocks.entry(src.to_string()).or_default().map(
-            s.stamp_us,
-            s.arrival_us,
-            latency,
-            window,
-            jump,
-        );
+        if !self.clocks.contains_key(src) {
+            self.clocks.insert(src.to_string(), ClockMap::default());
+        }
+        let Some(clock) = self.clocks.get_mut(src) else {
+            return vec![];
+        };
+        let t = clock.map(s.stamp_us, s.arrival_us, latency, window, jump);
         let key = Key {
             t,
             rank: rank(kind),
@@ -196,19 +267,40 @@ impl Estimator {
             }
             return vec![];
         }
+        let newest = self.newest_t.map_or(t, |n| n.max(t));
+        self.newest_t = Some(newest);
+        if let Some(lateness) = self.lateness.get_mut(&s.source) {
+            lateness.observe(newest, newest - t);
+        } else {
+            let mut l = Lateness {
+                window_start: newest,
+                ..Lateness::default()
+            };
+            l.observe(newest, newest - t);
+            self.lateness.insert(s.source.clone(), l);
+        }
+        let usable = self.usable.get(src).is_none_or(|u| u.0);
+        if let SensorData::Imu(imu) = &s.data {
+            if usable && imu::checks(imu).is_ok() {
+                let rate = imu
+                    .gyro
+                    .map_or(Vector3::zeros(), |g| g - self.core.imu.gyro_bias);
+                self.output.push(t, rate, imu.accel);
+            }
+        }
         let pos = self.log.partition_point(|e| e.key < key);
         self.log.insert(
             pos,
             Entry {
                 key: key.clone(),
                 data: s.data.clone(),
-                processed: false,
+                usable,
             },
         );
-        let start = if pos + 1 == self.log.len() {
-            pos
-        } else {
-            // Late: restore the snapshot before it and re-run from there.
+        // Fused up to here before; the horizon never moves back.
+        let fused_to = self.fused.checked_sub(1).map(|i| self.log[i].key.clone());
+        if pos < self.fused {
+            // Later than the horizon: restore the snapshot before it and re-run.
             let i = self.snaps.partition_point(|(k, _)| *k <= key);
             let Some(si) = i.checked_sub(1) else {
                 self.log.remove(pos);
@@ -217,22 +309,33 @@ impl Estimator {
             let (skey, core) = self.snaps[si].clone();
             self.core = core;
             self.snaps.truncate(si);
-            self.log.partition_point(|e| e.key < skey)
-        };
-        let out = self.run_from(start);
+            self.fused = self.log.partition_point(|e| e.key < skey);
+        }
+        let limit = newest - self.horizon_us();
+        let out = self.run_to(limit, fused_to.as_ref());
         self.prune();
         out
     }
 
-    fn run_from(&mut self, start: usize) -> Vec<EstimatorEvent> {
+    /// Fuse every sample into the filter now, whatever the horizon (the end of a log).
+    pub fn flush(&mut self) -> Vec<EstimatorEvent> {
+        let out = self.run_to(i64::MAX, None);
+        self.prune();
+        out
+    }
+
+    /// Fuse the waiting samples up to time `limit`, and at least up to `through`.
+    fn run_to(&mut self, limit: i64, through: Option<&Key>) -> Vec<EstimatorEvent> {
         let mut out = vec![];
         let ctx = Ctx {
             cfg: &self.cfg,
             usable: &self.usable,
             gates: self.gates,
         };
-        for i in start..self.log.len() {
-            let e = &self.log[i];
+        while let Some(e) = self.log.get(self.fused) {
+            if e.key.t > limit && through.is_none_or(|k| e.key > *k) {
+                break;
+            }
             let snap = self
                 .snaps
                 .back()
@@ -241,29 +344,34 @@ impl Estimator {
                 self.snaps.push_back((e.key.clone(), self.core.clone()));
             }
             self.core
-                .process_entry(e.key.t, &e.key.source, &e.data, &ctx);
+                .process_entry(e.key.t, &e.key.source, &e.data, e.usable, &ctx);
             for ev in self.core.events.drain(..) {
                 let sig = (ev.time_us, ev.kind(), ev.source.clone(), ev.message.clone());
                 if self.emitted.insert(sig) {
                     out.push(ev);
                 }
             }
-            self.log[i].processed = true;
+            self.fused += 1;
+        }
+        if let Some(e) = self.fused.checked_sub(1).and_then(|i| self.log.get(i)) {
+            self.output.drop_through(e.key.t);
         }
         out
     }
 
     fn prune(&mut self) {
-        let Some(newest) = self.log.back().map(|e| e.key.t) else {
+        let Some(newest) = self.newest_t else {
             return;
         };
         let horizon = newest - (self.cfg.history_ms * 1000.0) as i64;
         while self.snaps.len() >= 2 && self.snaps[1].0.t < horizon {
             self.snaps.pop_front();
         }
+        // Only fused samples go: every snapshot is of a fused one.
         if let Some((k, _)) = self.snaps.front() {
-            while self.log.front().is_some_and(|e| e.key < *k) {
+            while self.fused > 0 && self.log.front().is_some_and(|e| e.key < *k) {
                 self.log.pop_front();
+                self.fused -= 1;
             }
         }
         let keep = horizon - 1_000_000;
@@ -273,10 +381,12 @@ impl Estimator {
     }
 
     /// Drop the history (after a command changed the state): later samples older than
-    /// now cannot be re-run across the change.
+    /// now cannot be re-run across the change. Samples still waiting for the horizon
+    /// stay.
     fn clear_history(&mut self) {
         self.barrier = self.core.t;
-        self.log.clear();
+        self.log.drain(..self.fused);
+        self.fused = 0;
         self.snaps.clear();
     }
 
@@ -291,6 +401,8 @@ impl Estimator {
         if !c.initialised() {
             return None;
         }
+        let mut orientation = c.att.q;
+        let mut angular_velocity = c.imu.rate.map(|r| r.1);
         let (time_us, position, velocity, position_cov, velocity_cov) = if c.mode_wrls {
             let period = self.cfg.wrls_period_ms * 1e-3;
             (
@@ -301,17 +413,32 @@ impl Estimator {
                 Matrix3::from_diagonal(&(c.wrls.last_delta_var / (period * period))),
             )
         } else {
+            // The filter's state at the horizon, brought to the present.
             let e = c.ekf.as_ref()?;
-            (c.pred_t?, e.pos(), e.vel(), e.cov3(IDX_P), e.cov3(IDX_V))
+            let t = c.pred_t?;
+            let present = self.newest_t.map_or(t, |n| n.max(t));
+            let base = Base {
+                t,
+                p: e.pos(),
+                v: e.vel(),
+                q: c.att.q,
+                accel_bias: e.accel_bias(),
+                held: c.imu.last.as_ref().map(|l| (l.t, l.accel)),
+                attitude_known: c.att.known(),
+            };
+            let now = self.output.predict(&base, present);
+            orientation = now.q;
+            angular_velocity = now.rate.or(angular_velocity);
+            (present, now.p, now.v, e.cov3(IDX_P), e.cov3(IDX_V))
         };
-        let mut invalid_reason = c.validity(&self.cfg, self.observed_t);
+        let mut invalid_reason = c.validity(&self.cfg, self.observed_t.max(self.newest_t));
         let finite = position
             .iter()
             .chain(velocity.iter())
             .all(|v| v.is_finite())
             && position_cov.iter().all(|v| v.is_finite())
             && velocity_cov.iter().all(|v| v.is_finite())
-            && c.att.q.coords.iter().all(|v| v.is_finite());
+            && orientation.coords.iter().all(|v| v.is_finite());
         if !finite && invalid_reason.is_none() {
             invalid_reason = Some("non-finite value in the estimate".into());
         }
@@ -319,8 +446,8 @@ impl Estimator {
             time_us,
             position,
             velocity,
-            orientation: c.att.q,
-            angular_velocity: c.imu.rate.map(|r| r.1),
+            orientation,
+            angular_velocity,
             position_cov,
             velocity_cov,
             orientation_cov: c.att.cov,
@@ -369,10 +496,11 @@ impl Estimator {
 
     /// Make the current horizontal position the new origin (a discontinuity).
     pub fn reset_origin(&mut self, now_us: i64) -> Vec<EstimatorEvent> {
-        let c = &mut self.core;
-        let Some(p) = c.position() else {
+        // The present position (what the outputs show) becomes the origin.
+        let Some(p) = self.pose().map(|p| p.position) else {
             return vec![];
         };
+        let c = &mut self.core;
         let d = Vector3::new(-p.x, -p.y, 0.0);
         if let Some(ekf) = c.ekf.as_mut() {
             ekf.shift_position(d);
@@ -433,7 +561,7 @@ impl Estimator {
 
     pub fn state_summary(&self) -> EstimatorStatus {
         let c = &self.core;
-        let invalid_reason = c.validity(&self.cfg, self.observed_t);
+        let invalid_reason = c.validity(&self.cfg, self.observed_t.max(self.newest_t));
         let mut sources = c.stats.clone();
         for (s, st) in sources.iter_mut() {
             st.usable = self.usable.get(s).is_none_or(|u| u.0);

@@ -148,9 +148,18 @@ impl Core {
         self.event(t, Some(source), message, what);
     }
 
+    /// The statistics of `source` (created on its first sample; no allocation after).
+    pub(super) fn stat(&mut self, source: &str) -> &mut SourceStatus {
+        if !self.stats.contains_key(source) {
+            self.stats
+                .insert(source.to_string(), SourceStatus::default());
+        }
+        self.stats.get_mut(source).expect("inserted above")
+    }
+
     /// A sample failed its checks.
     pub fn reject(&mut self, t: i64, source: &str, why: &str, ctx: &Ctx) {
-        let st = self.stats.entry(source.to_string()).or_default();
+        let st = self.stat(source);
         st.last_time_us = Some(t);
         st.last_reject_reason = Some(why.to_string());
         self.throttled_event(
@@ -176,21 +185,21 @@ impl Core {
     /// A sample arrived that is not a measurement to fuse but was understood (a range
     /// finder on the ground): seen, neither used nor rejected.
     pub fn mark_seen(&mut self, t: i64, source: &str, kind: &'static str) {
-        let st = self.stats.entry(source.to_string()).or_default();
+        let st = self.stat(source);
         st.kind = kind;
         st.last_time_us = Some(t);
     }
 
     /// A non-aiding source (IMU, attitude) contributed.
     pub fn mark_used(&mut self, t: i64, source: &str) {
-        let st = self.stats.entry(source.to_string()).or_default();
+        let st = self.stat(source);
         st.last_time_us = Some(t);
         st.last_fused_us = Some(t);
         st.accepted += 1;
     }
 
     pub(super) fn mark_aiding(&mut self, t: i64, source: &str, kind: &'static str) {
-        let st = self.stats.entry(source.to_string()).or_default();
+        let st = self.stat(source);
         st.kind = kind;
         st.last_time_us = Some(t);
         st.last_fused_us = Some(t);
@@ -218,7 +227,7 @@ impl Core {
         out: &UpdateOutcome,
         ctx: &Ctx,
     ) {
-        let st = self.stats.entry(source.to_string()).or_default();
+        let st = self.stat(source);
         let same_sample = st.last_time_us == Some(t);
         st.kind = kind;
         st.last_time_us = Some(t);
@@ -341,7 +350,7 @@ impl Core {
         };
         let dof = y.nrows();
         let out = probe.update(&dvec(y.as_slice()), &h, &dmat3(r), ctx.gate(dof), false);
-        let st = self.stats.entry(source.to_string()).or_default();
+        let st = self.stat(source);
         st.kind = kind;
         st.last_time_us = Some(t);
         st.test_ratio = out.test_ratio;
@@ -569,16 +578,12 @@ impl Core {
             .filter(|l| t - l.t <= imu_timeout)
             .and_then(|l| l.accel.map(|a| (a, l.accel_var)));
         let bias_rw = cfg.accel_bias_rw;
-        let drift: Vec<f64> = self
-            .ekf
-            .as_ref()
-            .map(|e| {
-                e.blocks
-                    .iter()
-                    .map(|(s, _)| cfg.source(s).drift_rw.unwrap_or(cfg.vo_drift_rw))
-                    .collect()
-            })
-            .unwrap_or_default();
+        let drift = |s: &str| {
+            cfg.sources
+                .get(s)
+                .and_then(|c| c.drift_rw)
+                .unwrap_or(cfg.vo_drift_rw)
+        };
         let (f_body, var) = match held {
             Some((a, v)) if self.att.known() => (a, v + GRAVITY * GRAVITY * tilt_var),
             _ => {
@@ -599,12 +604,21 @@ impl Core {
         let a_world = rot * (f_body - ba) - Vector3::new(0.0, 0.0, GRAVITY);
         self.monitors.predict(a_world, dt);
         if let Some(ekf) = self.ekf.as_mut() {
-            ekf.predict(f_body, &rot, dt, var, bias_rw, &drift);
+            ekf.predict(f_body, &rot, dt, var, bias_rw, drift);
         }
     }
 
-    pub(super) fn process_entry(&mut self, t: i64, source: &str, data: &SensorData, ctx: &Ctx) {
-        if !ctx.usable(source) {
+    /// Fuse one sample; `usable`: the health layer's verdict on its source when it
+    /// arrived.
+    pub(super) fn process_entry(
+        &mut self,
+        t: i64,
+        source: &str,
+        data: &SensorData,
+        usable: bool,
+        ctx: &Ctx,
+    ) {
+        if !usable {
             if let SensorData::Gnss(g) = data {
                 gnss::probe(self, ctx, t, source, g);
             }
@@ -666,8 +680,17 @@ impl Core {
                 self.debug_point(t, DebugTopic::PoseMsg, "ekf", p);
             }
         }
-        let used = self.used_sources(t, cfg);
-        if used != self.used_set {
+        // Compared in place (this runs for every sample); the list is built on a change.
+        let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
+        let mut in_use = self
+            .stats
+            .iter()
+            .filter(|(_, st)| st.last_fused_us.is_some_and(|f| t - f <= timeout))
+            .map(|(s, _)| s);
+        let unchanged =
+            self.used_set.iter().all(|u| in_use.next() == Some(u)) && in_use.next().is_none();
+        if !unchanged {
+            let used = self.used_sources(t, cfg);
             let added: Vec<String> = used
                 .iter()
                 .filter(|s| !self.used_set.contains(s))
