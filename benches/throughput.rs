@@ -171,15 +171,6 @@ fn sim_samples(duration_s: f64) -> Vec<Sample> {
 /// each arrival fuses exactly itself: this prices what fusing each kind costs.
 fn fusion_order(samples: &[Sample], cfg: &EstimatorConfig) -> Vec<Sample> {
     let mut clocks: BTreeMap<String, skyfuse::estimator::timing::ClockMap> = BTreeMap::new();
-    let rank = |k: SensorKind| match k {
-        SensorKind::Imu => 0,
-        SensorKind::Attitude => 1,
-        SensorKind::Range => 2,
-        SensorKind::Flow => 3,
-        SensorKind::Odometry => 4,
-        SensorKind::Gnss => 5,
-        _ => 6,
-    };
     let mut keyed: Vec<(i64, u8, usize)> = samples
         .iter()
         .enumerate()
@@ -191,7 +182,7 @@ fn fusion_order(samples: &[Sample], cfg: &EstimatorConfig) -> Vec<Sample> {
                 (cfg.clock_window_s * 1e6) as i64,
                 (cfg.clock_jump_s * 1e6) as i64,
             );
-            (t, rank(s.data.kind()), i)
+            (t, skyfuse::estimator::rank(s.data.kind()), i)
         })
         .collect();
     keyed.sort();

@@ -185,6 +185,8 @@ pub async fn run(
             }
         }
     };
+    // The debug series change with every sample: watched only when they are published.
+    let debug_on = cfg.ros2 && cfg.ros2_debug;
     tracing::info!(prefix = %prefix, json = cfg.json, ros2 = cfg.ros2, pose_key = %cfg.ros2_pose_key, "Zenoh output running");
     loop {
         tokio::select! {
@@ -214,9 +216,8 @@ pub async fn run(
                     stats.poses.fetch_add(1, Relaxed);
                 }
             }
-            changed = inp.debug.changed() => {
+            changed = inp.debug.changed(), if debug_on => {
                 if changed.is_err() { break; }
-                if !(cfg.ros2 && cfg.ros2_debug) { continue; }
                 let d: Arc<DebugSeries> = inp.debug.borrow_and_update().clone();
                 for topic in DebugTopic::PUBLISHED {
                     let Some(pt) = d.series.get(&topic) else { continue };

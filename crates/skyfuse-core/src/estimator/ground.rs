@@ -232,8 +232,10 @@ pub fn control(core: &mut Core, ctx: &Ctx, t: i64) {
             .ekf
             .as_ref()
             .is_some_and(|e| e.vel().xy().norm() > HANDLED_SPEED);
-        let imu_moving =
-            core.ground.imu_t.is_some_and(|it| t - it <= IMU_FRESH_US) && !core.ground.at_rest(t);
+        // Moving: the IMU says so now. An IMU that has only just started (still, but
+        // not yet for `REST_AFTER_US`) is not a carry.
+        let imu_moving = core.ground.imu_t.is_some_and(|it| t - it <= IMU_FRESH_US)
+            && core.ground.still_since.is_none();
         if lifted || moving || imu_moving {
             if !core.ground.handled(t) {
                 core.event(

@@ -68,7 +68,7 @@ pub use status::{
 };
 
 /// Order of samples at equal times: prediction inputs first.
-fn rank(k: SensorKind) -> u8 {
+pub fn rank(k: SensorKind) -> u8 {
     match k {
         SensorKind::Imu => 0,
         SensorKind::Attitude => 1,

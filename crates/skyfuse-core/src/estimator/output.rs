@@ -318,25 +318,29 @@ mod tests {
             base.held.map(|h| h.0),
         );
         let mut rate = None;
-        for &(ts, w, f) in samples.iter().filter(|s| s.0 > base.t && s.0 <= present) {
-            let dt = (ts - t) as f64 * 1e-6;
+        // One step to `to` holding the last specific force (none after the timeout).
+        let step = |p: &mut Vector3<f64>,
+                    v: &mut Vector3<f64>,
+                    q: &UnitQuaternion<f64>,
+                    held: Option<(i64, Vector3<f64>)>,
+                    t: i64,
+                    to: i64| {
+            let dt = (to - t) as f64 * 1e-6;
             let a = held
-                .filter(|(th, _)| ts - th <= timeout)
+                .filter(|(th, _)| to - th <= timeout)
                 .map_or(Vector3::zeros(), |(_, f)| q * (f - base.accel_bias) - g);
-            p += v * dt + a * (0.5 * dt * dt);
-            v += a * dt;
+            *p += *v * dt + a * (0.5 * dt * dt);
+            *v += a * dt;
+        };
+        for &(ts, w, f) in samples.iter().filter(|s| s.0 > base.t && s.0 <= present) {
+            step(&mut p, &mut v, &q, held, t, ts);
             q *= UnitQuaternion::from_scaled_axis(w * rot_dt(ts - last_imu.unwrap_or(base.t)));
             t = ts;
             held = Some((ts, f));
             last_imu = Some(ts);
             rate = Some(w);
         }
-        let dt = (present - t) as f64 * 1e-6;
-        let a = held
-            .filter(|(th, _)| present - th <= timeout)
-            .map_or(Vector3::zeros(), |(_, f)| q * (f - base.accel_bias) - g);
-        p += v * dt + a * (0.5 * dt * dt);
-        v += a * dt;
+        step(&mut p, &mut v, &q, held, t, present);
         Present { p, v, q, rate }
     }
 

@@ -876,3 +876,77 @@ fn a_vehicle_carried_while_disarmed_is_not_held_on_the_ground() {
         p.position
     );
 }
+
+#[test]
+fn an_imu_that_has_just_started_is_not_a_carry() {
+    // Disarmed on the ground, range at its minimum, the IMU still from its first sample
+    // (ArduCopter SITL at start-up). Still, but not yet for the rest time, is not
+    // "moving": the estimate is valid from the first pose on, with no `handled` event.
+    let mut est = Estimator::new(flow_range_cfg());
+    let state = VehicleState {
+        armed: Some(false),
+        landed: Some(LandedState::OnGround),
+    };
+    let sample = |source: &str, t: i64, data: SensorData| Sample {
+        source: Arc::from(source),
+        stamp_us: Some(t),
+        arrival_us: t,
+        data,
+    };
+    let mut events = Vec::new();
+    let mut valid = Vec::new();
+    for k in 0..600i64 {
+        let t = 1_000_000 + k * 5_000;
+        let mut batch = vec![sample(
+            "imu",
+            t,
+            SensorData::Imu(Imu {
+                gyro: Some(Vector3::zeros()),
+                accel: Some(Vector3::new(0.0, 0.0, GRAVITY)),
+                orientation: None,
+                gyro_cov: None,
+                accel_cov: None,
+                orientation_cov: None,
+            }),
+        )];
+        if k % 4 == 0 {
+            batch.push(sample(
+                "range",
+                t,
+                SensorData::Range(Range {
+                    distance_m: 0.0,
+                    min_m: Some(0.2),
+                    max_m: Some(40.0),
+                    signal_quality: None,
+                    variance: None,
+                    orientation: Some(25),
+                }),
+            ));
+            batch.push(sample(
+                "attitude",
+                t,
+                SensorData::Attitude(Attitude {
+                    orientation: UnitQuaternion::identity(),
+                    rates: None,
+                }),
+            ));
+        }
+        if k % 40 == 0 {
+            batch.push(sample("state", t, SensorData::VehicleState(state)));
+        }
+        for s in &batch {
+            events.extend(est.process(s));
+        }
+        if let Some(p) = est.pose() {
+            valid.push(p.valid);
+        }
+    }
+    assert!(
+        !events.iter().any(|e| e.kind() == "handled"),
+        "{:?}",
+        events.iter().map(|e| &e.message).collect::<Vec<_>>()
+    );
+    // Initialised once the IMU has been still for the rest time; valid from then on.
+    assert!(valid.len() > 250, "{}", valid.len());
+    assert!(valid.iter().all(|v| *v), "invalid at some pose after start");
+}
