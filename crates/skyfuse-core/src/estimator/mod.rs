@@ -20,7 +20,7 @@
 //! with every source on time it is zero. The [`output`] predictor brings the state at
 //! the horizon to the present with the IMU samples ahead of it, so the pose sent is of
 //! now. A sample later still (older than what the filter has fused) restores the
-//! snapshot of the whole core before it (kept every 10 ms for `history_ms`) and re-runs
+//! snapshot of the whole core before it (kept every 50 ms for `history_ms`) and re-runs
 //! from there, so the result is the same as if it had arrived in order (bit for bit: the
 //! same operations run in the same order). Events of re-run samples are emitted once.
 //!
@@ -246,8 +246,13 @@ impl Estimator {
             seq: self.seq,
         };
         self.seq += 1;
+        // Older than every snapshot: too old, unless the first is of the empty filter
+        // (start-up: a slower source's first sample is older than the IMU's first).
         let too_old = self.barrier.is_some_and(|b| t < b)
-            || self.snaps.front().is_some_and(|(k, _)| key < *k);
+            || self
+                .snaps
+                .front()
+                .is_some_and(|(k, c)| key < *k && c.t.is_some());
         if too_old {
             self.late_dropped += 1;
             if self.late_event_t.is_none_or(|l| t - l > 1_000_000 || t < l) {
@@ -302,14 +307,20 @@ impl Estimator {
         if pos < self.fused {
             // Later than the horizon: restore the snapshot before it and re-run.
             let i = self.snaps.partition_point(|(k, _)| *k <= key);
-            let Some(si) = i.checked_sub(1) else {
+            let Some(si) = i.checked_sub(1).or_else(|| {
+                self.snaps
+                    .front()
+                    .is_some_and(|(_, c)| c.t.is_none())
+                    .then_some(0)
+            }) else {
                 self.log.remove(pos);
                 return vec![];
             };
             let (skey, core) = self.snaps[si].clone();
             self.core = core;
             self.snaps.truncate(si);
-            self.fused = self.log.partition_point(|e| e.key < skey);
+            let from = skey.min(key);
+            self.fused = self.log.partition_point(|e| e.key < from);
         }
         let limit = newest - self.horizon_us();
         let out = self.run_to(limit, fused_to.as_ref());
