@@ -158,23 +158,31 @@ pub async fn run_with(
             })
             .collect(),
     };
+    let (vpe, vpe_zenoh) = mavlink_out::start(
+        config.mavlink.clone(),
+        config.estimator.max_pos_std_m,
+        mavlink_stats,
+        endpoints,
+        tap.clone(),
+    );
+    let vpe_on_pose = vpe.clone();
     let estimator = tokio::spawn(pipeline::run(
         rx,
         cmd_rx,
         pipeline_config,
         ingest.clone(),
         shared.clone(),
-        pose_tx,
-        debug_tx,
+        pipeline::PipelineOutputs {
+            pose: pose_tx,
+            debug: debug_tx,
+            on_pose: Box::new(move |p| crate::sync::lock(&vpe_on_pose).on_pose(p)),
+        },
     ));
     let mavlink = tokio::spawn(mavlink_out::run(
-        config.mavlink.clone(),
-        config.estimator.max_pos_std_m,
+        vpe,
         pose_rx.clone(),
-        mavlink_stats,
-        endpoints,
-        (config.mavlink.zenoh_raw || config.mavlink.zenoh_json).then(|| session.clone()),
-        tap.clone(),
+        vpe_zenoh.is_some().then(|| session.clone()),
+        vpe_zenoh,
     ));
     let health_state = Arc::downgrade(&state);
     let zenoh_output = tokio::spawn(zenoh_out::run(

@@ -88,6 +88,9 @@ pub struct SensorVerdict {
 }
 
 pub type PoseSender = watch::Sender<Option<Arc<FusedPose>>>;
+/// Called with every new pose, in the estimator's task, before it is shared (the
+/// MAVLink output sends its VPE from here).
+pub type PoseHook = Box<dyn FnMut(&FusedPose) + Send>;
 pub type PoseReceiver = watch::Receiver<Option<Arc<FusedPose>>>;
 pub type DebugSender = watch::Sender<Arc<DebugSeries>>;
 pub type DebugReceiver = watch::Receiver<Arc<DebugSeries>>;
@@ -167,6 +170,13 @@ pub struct PipelineConfig {
     pub inputs: InputList,
 }
 
+/// Where the estimator task's results go.
+pub struct PipelineOutputs {
+    pub pose: PoseSender,
+    pub debug: DebugSender,
+    pub on_pose: PoseHook,
+}
+
 /// Health is re-checked, and the status snapshot refreshed, this often (staleness and an
 /// estimate turning invalid show without samples).
 const HEALTH_TICK: std::time::Duration = std::time::Duration::from_millis(100);
@@ -178,9 +188,13 @@ pub async fn run(
     config: PipelineConfig,
     ingest: Arc<Ingest>,
     shared: Arc<PipelineShared>,
-    pose_tx: PoseSender,
-    debug_tx: DebugSender,
+    outputs: PipelineOutputs,
 ) {
+    let PipelineOutputs {
+        pose: pose_tx,
+        debug: debug_tx,
+        mut on_pose,
+    } = outputs;
     let mut fusion = Fusion::new(config.estimator, config.health, &config.inputs);
     let mut ticks = TickBuilder::default();
     let mut last_pose_us: Option<i64> = None;
@@ -204,6 +218,8 @@ pub async fn run(
                 if let Some(p) = est.pose() {
                     if last_pose_us != Some(p.time_us) {
                         last_pose_us = Some(p.time_us);
+                        // The autopilot's copy first, from this task: no hop.
+                        on_pose(&p);
                         pose_tx.send_replace(Some(Arc::new(p)));
                     }
                 }

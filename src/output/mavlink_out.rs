@@ -10,6 +10,7 @@ use super::vpe::{self, MessageSet, VpeError};
 use crate::clock::{now_us, RateMeter};
 use crate::config::Endpoint;
 use crate::config::MavlinkConfig;
+use crate::estimator::FusedPose;
 use crate::pipeline::PoseReceiver;
 use mavlink::MavHeader;
 use serde::Serialize;
@@ -406,42 +407,56 @@ pub const ZENOH_RAW_IN: &str = "mavlink_raw/in";
 pub const ZENOH_JSON_IN: &str = "mavlink/in";
 
 /// Run the output until `pose` closes.
-pub async fn run(
+/// A frame the task publishes on Zenoh (its put is async; the sender never waits).
+type ZenohFrame = (MavHeader, mavlink::dialects::common::MavMessage, Arc<[u8]>);
+/// Frames waiting for the Zenoh publisher before new ones are dropped.
+const ZENOH_QUEUE: usize = 64;
+
+/// What decides and encodes the frames: the VPE schedule, heartbeats, the EKF origin.
+/// Synchronous, so the estimator's task sends a VPE the moment it makes the pose (no
+/// hop to another task); the output task calls it on a timer for heartbeats and to
+/// report a stale estimate when no pose comes.
+pub struct VpeSender {
     cfg: MavlinkConfig,
     max_std_m: f64,
-    mut pose: PoseReceiver,
+    stats: Arc<MavlinkStats>,
+    links: Vec<Link>,
+    set: MessageSet,
+    period_us: i64,
+    max_age_us: i64,
+    next_due: Option<i64>,
+    seq: u8,
+    last_heartbeat: Option<i64>,
+    last_origin: Option<i64>,
+    started: i64,
+    last_sent_pose_us: Option<i64>,
+    tap: crate::tap::Tap,
+    zenoh: Option<mpsc::Sender<ZenohFrame>>,
+}
+
+/// The sender, shared by the estimator's task (new poses) and the output task (timer).
+pub type VpeHandle = Arc<Mutex<VpeSender>>;
+
+/// Set the output up: the links' tasks start here. Returns the sender and, with a Zenoh
+/// route (`zenoh_raw`/`zenoh_json`), the queue the output task publishes from.
+pub fn start(
+    cfg: MavlinkConfig,
+    max_std_m: f64,
     stats: Arc<MavlinkStats>,
     endpoints: Vec<Endpoint>,
-    session: Option<zenoh::Session>,
     tap: crate::tap::Tap,
-) {
+) -> (VpeHandle, Option<mpsc::Receiver<ZenohFrame>>) {
     let links: Vec<Link> = endpoints
         .into_iter()
         .zip(stats.links.iter())
         .map(|(ep, (_, s))| spawn_link(ep, s.clone()))
         .collect();
-    let zenoh_stats: Vec<Arc<LinkStats>> = stats
-        .links
-        .iter()
-        .filter(|(n, _)| n.starts_with("zenoh:"))
-        .map(|(_, s)| s.clone())
-        .collect();
-    let set = MessageSet {
-        vision_position_estimate: cfg.vision_position_estimate,
-        vision_speed_estimate: cfg.vision_speed_estimate,
-        odometry: cfg.odometry,
+    let (zenoh, zenoh_rx) = if cfg.zenoh_raw || cfg.zenoh_json {
+        let (tx, rx) = mpsc::channel(ZENOH_QUEUE);
+        (Some(tx), Some(rx))
+    } else {
+        (None, None)
     };
-    let period_us = (1e6 / cfg.rate_hz) as i64;
-    // Checks without a new pose (staleness, heartbeat) run this often.
-    let mut check = tokio::time::interval(CHECK_INTERVAL);
-    check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    let mut next_due: Option<i64> = None;
-    let max_age_us = (cfg.max_age_ms * 1e3) as i64;
-    let mut seq: u8 = 0;
-    let mut last_heartbeat: Option<i64> = None;
-    let mut last_origin: Option<i64> = None;
-    let started = now_us();
-    let mut last_sent_pose_us: Option<i64> = None;
     tracing::info!(
         endpoints = ?cfg.endpoints,
         zenoh_raw = cfg.zenoh_raw,
@@ -451,38 +466,67 @@ pub async fn run(
         cfg.system_id,
         cfg.component_id
     );
-    loop {
-        // A new pose goes out as soon as one is due (lowest latency); the schedule
-        // advances on a fixed grid, so the rate is the configured one on average.
-        tokio::select! {
-            _ = check.tick() => {}
-            changed = pose.changed() => {
-                if changed.is_err() { break; }
-            }
-        }
-        let now = now_us();
-        let due = next_due.is_none_or(|d| now + SEND_SLACK_US >= d);
-        let heartbeat_due =
-            cfg.heartbeat && last_heartbeat.is_none_or(|h| now - h >= HEARTBEAT_INTERVAL_US);
+    let sender = VpeSender {
+        set: MessageSet {
+            vision_position_estimate: cfg.vision_position_estimate,
+            vision_speed_estimate: cfg.vision_speed_estimate,
+            odometry: cfg.odometry,
+        },
+        period_us: (1e6 / cfg.rate_hz) as i64,
+        max_age_us: (cfg.max_age_ms * 1e3) as i64,
+        next_due: None,
+        seq: 0,
+        last_heartbeat: None,
+        last_origin: None,
+        started: now_us(),
+        last_sent_pose_us: None,
+        cfg,
+        max_std_m,
+        stats,
+        links,
+        tap,
+        zenoh,
+    };
+    (Arc::new(Mutex::new(sender)), zenoh_rx)
+}
+
+impl VpeSender {
+    /// A new pose from the estimator: it goes out at once if a frame is due.
+    pub fn on_pose(&mut self, pose: &FusedPose) {
+        self.step(now_us(), Some(pose), true);
+    }
+
+    /// Heartbeats, the EKF origin, and the VPE schedule at `now`. `current`: the newest
+    /// pose; `fresh`: it was just made. A good pose goes out only when fresh (a pose
+    /// that waited for the timer would be older than the next one); a stale, invalid
+    /// or missing one is reported (withheld) from the timer too.
+    fn step(&mut self, now: i64, current: Option<&FusedPose>, fresh: bool) {
+        let cfg = &self.cfg;
+        let stats = &self.stats;
+        let due = self.next_due.is_none_or(|d| now + SEND_SLACK_US >= d);
+        let heartbeat_due = cfg.heartbeat
+            && self
+                .last_heartbeat
+                .is_none_or(|h| now - h >= HEARTBEAT_INTERVAL_US);
         if !due && !heartbeat_due {
-            continue;
+            return;
         }
-        let current = pose.borrow_and_update().clone();
         let mut frames: Vec<mavlink::dialects::common::MavMessage> = Vec::new();
-        let valid_now = current.as_ref().is_some_and(|p| p.valid);
+        let valid_now = current.is_some_and(|p| p.valid);
         if heartbeat_due {
-            last_heartbeat = Some(now);
+            self.last_heartbeat = Some(now);
             frames.push(vpe::heartbeat(valid_now));
             stats.heartbeats.fetch_add(1, Relaxed);
             if let Some(origin) = cfg.ekf_origin {
-                let since_start = (now - started) as f64 * 1e-6;
+                let since_start = (now - self.started) as f64 * 1e-6;
                 let burst = since_start <= crate::config::ORIGIN_BURST_S;
-                let resend = last_origin
+                let resend = self
+                    .last_origin
                     .is_none_or(|l| (now - l) as f64 * 1e-6 >= crate::config::ORIGIN_RESEND_S);
                 if burst || resend {
                     match vpe::origin_messages(origin, cfg.target_system, now.max(0) as u64) {
                         Ok([set_origin, home]) => {
-                            last_origin = Some(now);
+                            self.last_origin = Some(now);
                             frames.push(set_origin);
                             if burst {
                                 frames.push(home);
@@ -494,22 +538,26 @@ pub async fn run(
                 }
             }
         }
-        let outcome = match current.as_deref() {
+        let outcome = match current {
             _ if !due => Ok(None),
             None => Err("estimator not initialised".to_string()),
-            Some(p) if now - p.time_us > max_age_us => Err(format!(
+            Some(p) if now - p.time_us > self.max_age_us => Err(format!(
                 "estimate stale: newest is {} ms old (limit {} ms)",
                 (now - p.time_us) / 1000,
                 cfg.max_age_ms
             )),
             // The same pose twice would tell the autopilot time stood still.
-            Some(p) if last_sent_pose_us == Some(p.time_us) => Ok(None),
-            Some(p) => match vpe::pose_messages(p, p.time_us.max(0) as u64, set, max_std_m) {
-                Ok(m) => Ok(Some((p.time_us, p.reset_counter, m))),
-                Err(VpeError::Invalid(why)) => Err(format!("estimate invalid: {why}")),
-                Err(e) => Err(format!("estimate rejected: {e}")),
-            },
+            Some(p) if self.last_sent_pose_us == Some(p.time_us) => Ok(None),
+            Some(p) if !fresh && p.valid => Ok(None),
+            Some(p) => {
+                match vpe::pose_messages(p, p.time_us.max(0) as u64, self.set, self.max_std_m) {
+                    Ok(m) => Ok(Some((p.time_us, p.reset_counter, m))),
+                    Err(VpeError::Invalid(why)) => Err(format!("estimate invalid: {why}")),
+                    Err(e) => Err(format!("estimate rejected: {e}")),
+                }
+            }
         };
+        let period_us = self.period_us;
         let advance = |next_due: &mut Option<i64>| {
             let base = match *next_due {
                 Some(d) if (now - d).abs() <= period_us => d,
@@ -519,8 +567,8 @@ pub async fn run(
         };
         match outcome {
             Ok(Some((t, reset, msgs))) => {
-                advance(&mut next_due);
-                last_sent_pose_us = Some(t);
+                advance(&mut self.next_due);
+                self.last_sent_pose_us = Some(t);
                 stats.vpe_sent.fetch_add(1, Relaxed);
                 stats.last_sent_us.store(now.max(0) as u64, Relaxed);
                 stats.last_reset_counter.store(u64::from(reset), Relaxed);
@@ -530,7 +578,7 @@ pub async fn run(
             }
             Ok(None) => {}
             Err(why) => {
-                advance(&mut next_due);
+                advance(&mut self.next_due);
                 stats.withheld.fetch_add(1, Relaxed);
                 let mut r = crate::sync::lock(&stats.not_sending_reason);
                 // Logged when the kind of reason changes ("estimate stale", "estimate
@@ -543,24 +591,68 @@ pub async fn run(
             }
         }
         for msg in frames {
-            seq = seq.wrapping_add(1);
+            self.seq = self.seq.wrapping_add(1);
             let header = MavHeader {
-                system_id: u32::from(cfg.system_id),
-                component_id: cfg.component_id,
-                sequence: seq,
+                system_id: u32::from(self.cfg.system_id),
+                component_id: self.cfg.component_id,
+                sequence: self.seq,
             };
             match crate::codec::mavlink::encode_raw_v2(header, &msg) {
                 Ok(frame) => {
                     let frame: Arc<[u8]> = frame.into();
-                    tap.mavlink_out(now, &frame);
-                    for l in &links {
+                    self.tap.mavlink_out(now, &frame);
+                    for l in &self.links {
                         l.offer(&frame);
                     }
-                    if let Some(s) = &session {
-                        publish_zenoh(s, &cfg, &zenoh_stats, header, &msg, &frame).await;
+                    if let Some(z) = &self.zenoh {
+                        if z.try_send((header, msg, frame)).is_err() {
+                            for (name, s) in &self.stats.links {
+                                if name.starts_with("zenoh:") {
+                                    s.dropped.fetch_add(1, Relaxed);
+                                }
+                            }
+                        }
                     }
                 }
                 Err(e) => tracing::error!("MAVLink output: cannot encode: {e}"),
+            }
+        }
+    }
+}
+
+/// The output's task: heartbeats and staleness on a timer (the estimator's task sends
+/// the VPEs through [`VpeSender::on_pose`]), and the frames routed through Zenoh.
+pub async fn run(
+    sender: VpeHandle,
+    pose: PoseReceiver,
+    session: Option<zenoh::Session>,
+    mut zenoh_frames: Option<mpsc::Receiver<ZenohFrame>>,
+) {
+    let (cfg, zenoh_stats) = {
+        let s = crate::sync::lock(&sender);
+        let z: Vec<Arc<LinkStats>> = s
+            .stats
+            .links
+            .iter()
+            .filter(|(n, _)| n.starts_with("zenoh:"))
+            .map(|(_, st)| st.clone())
+            .collect();
+        (s.cfg.clone(), z)
+    };
+    let mut check = tokio::time::interval(CHECK_INTERVAL);
+    check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    loop {
+        tokio::select! {
+            _ = check.tick() => {
+                if pose.has_changed().is_err() { break; }
+                let current = pose.borrow().clone();
+                crate::sync::lock(&sender).step(now_us(), current.as_deref(), false);
+            }
+            f = async { match zenoh_frames.as_mut() { Some(rx) => rx.recv().await, None => std::future::pending().await } } => {
+                let Some((header, msg, frame)) = f else { break };
+                if let Some(s) = &session {
+                    publish_zenoh(s, &cfg, &zenoh_stats, header, &msg, &frame).await;
+                }
             }
         }
     }
