@@ -2,9 +2,11 @@
 //! ODOMETRY) at a fixed rate from the latest fused pose, HEARTBEAT at 1 Hz, to every
 //! configured endpoint and/or through mavlink-server on Zenoh.
 //!
-//! Each endpoint has its own task and a small bounded queue: a link that is down or slow
-//! loses its own frames (counted) and reconnects with back-off; it never delays the
-//! others, and nothing here can block the estimator (which only writes a `watch`).
+//! The estimator's task hands each new pose to [`VpeSender::on_pose`], which sends the
+//! VPE at once when one is due (no hop to another task). Each endpoint has its own task
+//! and a small bounded queue (`udpout` frames leave with a non-blocking send): a link
+//! that is down or slow loses its own frames (counted) and reconnects with back-off; it
+//! never delays the others, and nothing here waits, so nothing can block the estimator.
 
 use super::vpe::{self, MessageSet, VpeError};
 use crate::clock::{now_us, RateMeter};
