@@ -170,18 +170,12 @@ fn sim_samples(duration_s: f64) -> Vec<Sample> {
 /// prediction inputs first at equal times). Fed so, nothing waits for the horizon and
 /// each arrival fuses exactly itself: this prices what fusing each kind costs.
 fn fusion_order(samples: &[Sample], cfg: &EstimatorConfig) -> Vec<Sample> {
-    let mut clocks: BTreeMap<String, skyfuse::estimator::timing::ClockMap> = BTreeMap::new();
+    let mut clocks = skyfuse::estimator::timing::SourceClocks::default();
     let mut keyed: Vec<(i64, u8, usize)> = samples
         .iter()
         .enumerate()
         .map(|(i, s)| {
-            let t = clocks.entry(s.source.to_string()).or_default().map(
-                s.stamp_us,
-                s.arrival_us,
-                cfg.latency_us(&s.source, s.data.kind()),
-                (cfg.clock_window_s * 1e6) as i64,
-                (cfg.clock_jump_s * 1e6) as i64,
-            );
+            let t = clocks.host_time(cfg, s);
             (t, skyfuse::estimator::rank(s.data.kind()), i)
         })
         .collect();

@@ -434,6 +434,8 @@ pub struct VpeSender {
     last_sent_pose_us: Option<i64>,
     tap: crate::tap::Tap,
     zenoh: Option<mpsc::Sender<ZenohFrame>>,
+    /// The Zenoh routes' counters (`zenoh:…` links).
+    zenoh_stats: Vec<Arc<LinkStats>>,
 }
 
 /// The sender, shared by the estimator's task (new poses) and the output task (timer).
@@ -468,6 +470,12 @@ pub fn start(
         cfg.system_id,
         cfg.component_id
     );
+    let zenoh_stats = stats
+        .links
+        .iter()
+        .filter(|(n, _)| n.starts_with("zenoh:"))
+        .map(|(_, s)| s.clone())
+        .collect();
     let sender = VpeSender {
         set: MessageSet {
             vision_position_estimate: cfg.vision_position_estimate,
@@ -488,6 +496,7 @@ pub fn start(
         links,
         tap,
         zenoh,
+        zenoh_stats,
     };
     (Arc::new(Mutex::new(sender)), zenoh_rx)
 }
@@ -608,10 +617,8 @@ impl VpeSender {
                     }
                     if let Some(z) = &self.zenoh {
                         if z.try_send((header, msg, frame)).is_err() {
-                            for (name, s) in &self.stats.links {
-                                if name.starts_with("zenoh:") {
-                                    s.dropped.fetch_add(1, Relaxed);
-                                }
+                            for s in &self.zenoh_stats {
+                                s.dropped.fetch_add(1, Relaxed);
                             }
                         }
                     }
@@ -632,14 +639,7 @@ pub async fn run(
 ) {
     let (cfg, zenoh_stats) = {
         let s = crate::sync::lock(&sender);
-        let z: Vec<Arc<LinkStats>> = s
-            .stats
-            .links
-            .iter()
-            .filter(|(n, _)| n.starts_with("zenoh:"))
-            .map(|(_, st)| st.clone())
-            .collect();
-        (s.cfg.clone(), z)
+        (s.cfg.clone(), s.zenoh_stats.clone())
     };
     let mut check = tokio::time::interval(CHECK_INTERVAL);
     check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);

@@ -56,9 +56,10 @@ use crate::sample::{Sample, SensorData, SensorKind};
 use ekf::{IDX_P, IDX_V};
 use nalgebra::{Matrix3, Vector3};
 use output::{Base, OutputPredictor};
+use std::borrow::Borrow;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
-use timing::ClockMap;
+use timing::SourceClocks;
 
 pub use crate::event::{EstimatorEvent, Event};
 pub(crate) use state::{Core, Ctx};
@@ -66,6 +67,25 @@ pub use status::{
     CalibrationStatus, DebugPoint, DebugSeries, DebugTopic, EstimatorStatus, FusedPose,
     SourceStatus,
 };
+
+/// `map[key]`, made by `new` on first use: a lookup by borrowed key, so the per-sample
+/// paths allocate a key only the first time (`entry` would take an owned one each time).
+/// `new` returns the entry's owned key, equal to `key`.
+pub(crate) fn get_or_insert_with<'a, K, V, Q>(
+    map: &'a mut BTreeMap<K, V>,
+    key: &Q,
+    new: impl FnOnce() -> (K, V),
+) -> &'a mut V
+where
+    K: Borrow<Q> + Ord,
+    Q: Ord + ?Sized,
+{
+    if !map.contains_key(key) {
+        let (k, v) = new();
+        map.insert(k, v);
+    }
+    map.get_mut(key).expect("inserted above under the same key")
+}
 
 /// Order of samples at equal times: prediction inputs first.
 pub fn rank(k: SensorKind) -> u8 {
@@ -147,7 +167,7 @@ pub struct Estimator {
     lateness: BTreeMap<Arc<str>, Lateness>,
     output: OutputPredictor,
     snaps: VecDeque<(Key, Core)>,
-    clocks: BTreeMap<String, ClockMap>,
+    clocks: SourceClocks,
     usable: BTreeMap<String, (bool, String)>,
     gates: [f64; 7],
     seq: u64,
@@ -180,7 +200,7 @@ impl Estimator {
             output: OutputPredictor::new((cfg.imu_timeout_ms * 1000.0) as i64),
             cfg,
             snaps: VecDeque::new(),
-            clocks: BTreeMap::new(),
+            clocks: SourceClocks::default(),
             usable: BTreeMap::new(),
             gates,
             seq: 0,
@@ -208,6 +228,12 @@ impl Estimator {
         &self.cfg
     }
 
+    /// When validity is judged (host clock): the newest sample's time, or the caller's
+    /// clock when it has seen time pass without samples.
+    fn judged_at(&self) -> Option<i64> {
+        self.observed_t.max(self.newest_t)
+    }
+
     /// How far behind the newest sample the filter fuses, µs.
     pub fn horizon_us(&self) -> i64 {
         let max = MAX_HORIZON_US.min((self.cfg.history_ms * 500.0) as i64);
@@ -229,16 +255,7 @@ impl Estimator {
         if self.cfg.sources.get(src).is_some_and(|c| !c.fuse) {
             return vec![];
         }
-        let latency = self.cfg.latency_us(src, kind);
-        let window = (self.cfg.clock_window_s * 1e6) as i64;
-        let jump = (self.cfg.clock_jump_s * 1e6) as i64;
-        if !self.clocks.contains_key(src) {
-            self.clocks.insert(src.to_string(), ClockMap::default());
-        }
-        let Some(clock) = self.clocks.get_mut(src) else {
-            return vec![];
-        };
-        let t = clock.map(s.stamp_us, s.arrival_us, latency, window, jump);
+        let t = self.clocks.host_time(&self.cfg, s);
         let key = Key {
             t,
             rank: rank(kind),
@@ -274,16 +291,14 @@ impl Estimator {
         }
         let newest = self.newest_t.map_or(t, |n| n.max(t));
         self.newest_t = Some(newest);
-        if let Some(lateness) = self.lateness.get_mut(&s.source) {
-            lateness.observe(newest, newest - t);
-        } else {
-            let mut l = Lateness {
+        get_or_insert_with(&mut self.lateness, src, || {
+            let first = Lateness {
                 window_start: newest,
                 ..Lateness::default()
             };
-            l.observe(newest, newest - t);
-            self.lateness.insert(s.source.clone(), l);
-        }
+            (s.source.clone(), first)
+        })
+        .observe(newest, newest - t);
         let usable = self.usable.get(src).is_none_or(|u| u.0);
         if let SensorData::Imu(imu) = &s.data {
             if usable && imu::checks(imu).is_ok() {
@@ -302,21 +317,20 @@ impl Estimator {
                 usable,
             },
         );
-        // Fused up to here before; the horizon never moves back.
-        let fused_to = self.fused.checked_sub(1).map(|i| self.log[i].key.clone());
+        // A re-run fuses at least as far as before: the horizon never moves back.
+        let mut fused_to = None;
         if pos < self.fused {
-            // Later than the horizon: restore the snapshot before it and re-run.
-            let i = self.snaps.partition_point(|(k, _)| *k <= key);
-            let Some(si) = i.checked_sub(1).or_else(|| {
-                self.snaps
-                    .front()
-                    .is_some_and(|(_, c)| c.t.is_none())
-                    .then_some(0)
-            }) else {
+            // Later than the horizon: restore the snapshot before it and re-run. Before
+            // the first one only when that is of the empty filter (else it was too old).
+            fused_to = self.fused.checked_sub(1).map(|i| self.log[i].key.clone());
+            let si = self
+                .snaps
+                .partition_point(|(k, _)| *k <= key)
+                .saturating_sub(1);
+            let Some((skey, core)) = self.snaps.get(si).cloned() else {
                 self.log.remove(pos);
                 return vec![];
             };
-            let (skey, core) = self.snaps[si].clone();
             self.core = core;
             self.snaps.truncate(si);
             let from = skey.min(key);
@@ -442,7 +456,7 @@ impl Estimator {
             angular_velocity = now.rate.or(angular_velocity);
             (present, now.p, now.v, e.cov3(IDX_P), e.cov3(IDX_V))
         };
-        let mut invalid_reason = c.validity(&self.cfg, self.observed_t.max(self.newest_t));
+        let mut invalid_reason = c.validity(&self.cfg, self.judged_at());
         let finite = position
             .iter()
             .chain(velocity.iter())
@@ -572,7 +586,7 @@ impl Estimator {
 
     pub fn state_summary(&self) -> EstimatorStatus {
         let c = &self.core;
-        let invalid_reason = c.validity(&self.cfg, self.observed_t.max(self.newest_t));
+        let invalid_reason = c.validity(&self.cfg, self.judged_at());
         let mut sources = c.stats.clone();
         for (s, st) in sources.iter_mut() {
             st.usable = self.usable.get(s).is_none_or(|u| u.0);

@@ -237,10 +237,20 @@ impl OutputPredictor {
             *p += *v * dt + a * (0.5 * dt * dt);
             *v += a * dt;
         };
+        // First, to the first sample ahead (or to `present` before it) holding the
+        // specific force the filter holds.
         let held = base.held.and_then(|(t, f)| f.map(|f| (t, f)));
-        let Some(i) = first else {
-            let accel = held.and_then(|(t, f)| self.held(Some(f), t, present));
-            step(&mut p, &mut v, &q, present.max(base.t) - base.t, accel);
+        let to = first
+            .map_or(present, |i| self.nodes[i].t.min(present))
+            .max(base.t);
+        step(
+            &mut p,
+            &mut v,
+            &q,
+            to - base.t,
+            held.and_then(|(t, f)| self.held(Some(f), t, to)),
+        );
+        let Some(i) = first.filter(|&i| self.nodes[i].t <= present) else {
             return Present {
                 p,
                 v,
@@ -251,38 +261,20 @@ impl OutputPredictor {
         let n0 = &self.nodes[i];
         let end = self.nodes.partition_point(|n| n.t <= present);
         let last = end.checked_sub(1).map_or(n0, |j| &self.nodes[j.max(i)]);
-        let to = n0.t.min(present.max(base.t));
-        step(
-            &mut p,
-            &mut v,
-            &q,
-            to - base.t,
-            held.and_then(|(t, f)| self.held(Some(f), t, to)),
-        );
-        if present < n0.t {
-            return Present {
-                p,
-                v,
-                q,
-                rate: None,
-            };
-        }
         let since = base.held.map_or(n0.t - base.t, |(t, _)| n0.t - t);
         q *= UnitQuaternion::from_scaled_axis(n0.rate * rot_dt(since));
         // The pre-integrated steps from the first sample ahead to the last.
+        let span = (last.t - n0.t) as f64 * 1e-6;
+        let d = n0.sums.between(&last.sums, span);
         if base.attitude_known {
-            let span = (last.t - n0.t) as f64 * 1e-6;
-            let d = n0.sums.between(&last.sums, span);
             let r = *q.to_rotation_matrix().matrix();
             let b = base.accel_bias;
             p += v * span + r * (d.p1 - d.m2 * b) - gravity * d.g2;
             v += r * (d.v1 - d.m1 * b) - gravity * d.g1;
-            q *= d.q;
         } else {
-            let span = (last.t - n0.t) as f64 * 1e-6;
             p += v * span;
-            q *= n0.sums.between(&last.sums, span).q;
         }
+        q *= d.q;
         step(
             &mut p,
             &mut v,

@@ -150,11 +150,9 @@ impl Core {
 
     /// The statistics of `source` (created on its first sample; no allocation after).
     pub(super) fn stat(&mut self, source: &str) -> &mut SourceStatus {
-        if !self.stats.contains_key(source) {
-            self.stats
-                .insert(source.to_string(), SourceStatus::default());
-        }
-        self.stats.get_mut(source).expect("inserted above")
+        super::get_or_insert_with(&mut self.stats, source, || {
+            (source.to_string(), SourceStatus::default())
+        })
     }
 
     /// A sample failed its checks.
@@ -681,16 +679,8 @@ impl Core {
             }
         }
         // Compared in place (this runs for every sample); the list is built on a change.
-        let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
-        let mut in_use = self
-            .stats
-            .iter()
-            .filter(|(_, st)| st.last_fused_us.is_some_and(|f| t - f <= timeout))
-            .map(|(s, _)| s);
-        let unchanged =
-            self.used_set.iter().all(|u| in_use.next() == Some(u)) && in_use.next().is_none();
-        if !unchanged {
-            let used = self.used_sources(t, cfg);
+        if !self.used_sources(t, cfg).eq(self.used_set.iter()) {
+            let used: Vec<String> = self.used_sources(t, cfg).cloned().collect();
             let added: Vec<String> = used
                 .iter()
                 .filter(|s| !self.used_set.contains(s))
@@ -757,13 +747,17 @@ impl Core {
         );
     }
 
-    pub(super) fn used_sources(&self, t: i64, cfg: &EstimatorConfig) -> Vec<String> {
+    /// The sources fused within `aiding_timeout_ms` of `t`, in name order.
+    pub(super) fn used_sources<'a>(
+        &'a self,
+        t: i64,
+        cfg: &EstimatorConfig,
+    ) -> impl Iterator<Item = &'a String> + 'a {
         let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
         self.stats
             .iter()
-            .filter(|(_, st)| st.last_fused_us.is_some_and(|f| t - f <= timeout))
-            .map(|(s, _)| s.clone())
-            .collect()
+            .filter(move |(_, st)| st.last_fused_us.is_some_and(|f| t - f <= timeout))
+            .map(|(s, _)| s)
     }
 
     /// Why the estimate is not valid at time `now` (None: valid). `now` is at least the

@@ -14,7 +14,9 @@
 //! thousand times too slowly; GPS_RAW_INT's is 0 without a fix). The windowed minimum
 //! would otherwise map such samples seconds into the past.
 
-use std::collections::VecDeque;
+use super::EstimatorConfig;
+use crate::sample::Sample;
+use std::collections::{BTreeMap, VecDeque};
 
 /// Stamps are compared with arrival over this span, µs.
 pub const RATE_SPAN_US: i64 = 2_000_000;
@@ -99,6 +101,32 @@ impl ClockMap {
     /// Current offset estimate (host - sensor clock, including the smallest delay), µs.
     pub fn offset_us(&self) -> Option<i64> {
         self.window.front().map(|&(_, d)| d)
+    }
+}
+
+/// Every source's clock mapping.
+#[derive(Debug, Clone, Default)]
+pub struct SourceClocks(BTreeMap<String, ClockMap>);
+
+impl SourceClocks {
+    /// Host time of `s`, µs: its source's mapping with `cfg`'s latency (per source, else
+    /// per kind), offset window and jump threshold.
+    pub fn host_time(&mut self, cfg: &EstimatorConfig, s: &Sample) -> i64 {
+        let src: &str = &s.source;
+        let latency = cfg.latency_us(src, s.data.kind());
+        let window = (cfg.clock_window_s * 1e6) as i64;
+        let jump = (cfg.clock_jump_s * 1e6) as i64;
+        super::get_or_insert_with(&mut self.0, src, || (src.to_string(), ClockMap::default())).map(
+            s.stamp_us,
+            s.arrival_us,
+            latency,
+            window,
+            jump,
+        )
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = (&String, &ClockMap)> {
+        self.0.iter()
     }
 }
 
