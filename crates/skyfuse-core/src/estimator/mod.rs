@@ -322,7 +322,8 @@ impl Estimator {
         if pos < self.fused {
             // Later than the horizon: restore the snapshot before it and re-run. Before
             // the first one only when that is of the empty filter (else it was too old).
-            fused_to = self.fused.checked_sub(1).map(|i| self.log[i].key.clone());
+            // The new sample sits before it, so the last fused one is now at `fused`.
+            fused_to = self.log.get(self.fused).map(|e| e.key.clone());
             let si = self
                 .snaps
                 .partition_point(|(k, _)| *k <= key)

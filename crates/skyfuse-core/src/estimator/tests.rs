@@ -954,3 +954,55 @@ fn an_imu_that_has_just_started_is_not_a_carry() {
     assert!(valid.len() > 250, "{}", valid.len());
     assert!(valid.iter().all(|v| *v), "invalid at some pose after start");
 }
+
+#[test]
+fn a_re_run_fuses_at_least_as_far_as_before() {
+    // IMU alone, on time: the horizon is 0 and every sample is fused as it comes. Then
+    // a GNSS fix 100 ms late: it is fused by a re-run, and the horizon grows to its
+    // lateness. The re-run must still fuse everything fused before it (the output
+    // predictor has already let those IMU samples go): the filter's time never moves
+    // back.
+    let mut est = Estimator::new(EstimatorConfig::default());
+    let imu = |t: i64| Sample {
+        source: Arc::from("imu"),
+        stamp_us: None,
+        arrival_us: t,
+        data: SensorData::Imu(Imu {
+            gyro: Some(Vector3::zeros()),
+            accel: Some(Vector3::new(0.0, 0.0, GRAVITY)),
+            orientation: None,
+            gyro_cov: None,
+            accel_cov: None,
+            orientation_cov: None,
+        }),
+    };
+    let mut t = 1_000_000;
+    while t <= 2_000_000 {
+        est.process(&imu(t));
+        t += 5_000;
+    }
+    assert_eq!(est.horizon_us(), 0);
+    let before = est.state_time().expect("fused");
+    est.process(&Sample {
+        source: Arc::from("gps"),
+        stamp_us: None,
+        arrival_us: 2_000_000,
+        data: SensorData::Gnss(GnssFix {
+            lat_deg: 47.0,
+            lon_deg: 8.0,
+            alt_m: 500.0,
+            fix: crate::sample::GnssFixType::Fix3d,
+            position_cov: None,
+            satellites: Some(12),
+            hdop: Some(0.8),
+            vdop: None,
+            velocity: None,
+        }),
+    });
+    assert!(est.horizon_us() >= 90_000, "{}", est.horizon_us());
+    let after = est.state_time().expect("fused");
+    assert!(
+        after >= before,
+        "fused to {after} after the re-run, {before} before"
+    );
+}
