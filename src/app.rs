@@ -1,5 +1,5 @@
 //! Wiring: [`run`] takes a validated config, already-bound listeners (so tests bind
-//! port 0) and a shutdown future, and runs ingest, the estimator task ([`pipeline`]),
+//! port 0) and a shutdown future, and runs ingest, the estimator ([`pipeline`]),
 //! the outputs and HTTP until shutdown.
 //!
 //! [`pipeline`]: crate::pipeline
@@ -14,14 +14,13 @@ use crate::ingest::{zenoh_in, Ingest};
 use crate::output::mavlink_out;
 use crate::output::zenoh_out::{self, ZenohOutInputs, ZenohOutStats};
 use crate::pipeline::{self, PipelineShared};
-use crate::sample::Sample;
 use crate::sim::faults::FaultSchedule;
 use std::future::Future;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
 use std::time::Duration;
 use thiserror::Error;
-use tokio::sync::{mpsc, watch};
+use tokio::sync::{mpsc, oneshot, watch};
 
 /// Listeners and sessions opened by the caller.
 pub struct Listeners {
@@ -80,7 +79,6 @@ pub async fn run_with(
     // HTTPS: a bad certificate or key fails the start, naming the file.
     let tls = crate::http::tls::configured(&config.http)?;
     let ingest = Arc::new(Ingest::new(&config));
-    let (tx, rx) = mpsc::channel::<Sample>(config.ingest.channel_capacity);
     let session = listeners.zenoh;
     let zid = session.zid().to_string();
     let locators = config.zenoh.listen.clone();
@@ -94,12 +92,11 @@ pub async fn run_with(
     )
     .await?;
     let recorder = recorder.map(Arc::new);
-    let subscribers =
-        zenoh_in::subscribe_inputs(&session, ingest.clone(), tx.clone(), tap.clone()).await?;
     let started_us = now_us();
     let hub = Arc::new(Hub::default());
     let shared = Arc::new(PipelineShared::new(hub.clone(), started_us));
     let (pose_tx, pose_rx) = watch::channel(None);
+    let (pose_out_tx, pose_out_rx) = watch::channel(None);
     let (debug_tx, debug_rx) = watch::channel(Arc::new(crate::estimator::DebugSeries::default()));
     let (mavlink_stats, endpoints) = mavlink_out::build_stats(&config.mavlink);
     let zenoh_out_stats = Arc::new(ZenohOutStats::default());
@@ -119,31 +116,6 @@ pub async fn run_with(
         (Vec::new(), None)
     };
     let (cmd_tx, cmd_rx) = mpsc::channel(16);
-    let http_addr = listeners.http.local_addr().map_err(RunError::Http)?;
-    let dashboard_url = dashboard_url(&config.http, http_addr);
-    let state = Arc::new(AppState {
-        config: config.clone(),
-        ingest: ingest.clone(),
-        pipeline: shared.clone(),
-        hub: hub.clone(),
-        commands: cmd_tx,
-        pose: pose_rx.clone(),
-        faults: options.faults,
-        controls_refused: AtomicU64::new(0),
-        refusals: Default::default(),
-        mavlink_stats: mavlink_stats.clone(),
-        zenoh_out_stats: zenoh_out_stats.clone(),
-        started_us,
-        zenoh_zid: zid.clone(),
-        zenoh_locators: locators.clone(),
-        queue: tx.downgrade(),
-        zenoh_closed: AtomicBool::new(false),
-        zenoh_routers: AtomicU64::new(0),
-        zenoh_peers: AtomicU64::new(0),
-        recorder: recorder.clone(),
-        dashboard_url,
-    });
-    drop(tx);
     let pipeline_config = pipeline::PipelineConfig {
         estimator: config.estimator.clone(),
         health: config.health.clone(),
@@ -161,23 +133,61 @@ pub async fn run_with(
     let (vpe, vpe_zenoh) = mavlink_out::start(
         config.mavlink.clone(),
         config.estimator.max_pos_std_m,
-        mavlink_stats,
+        mavlink_stats.clone(),
         endpoints,
         tap.clone(),
     );
     let vpe_on_pose = vpe.clone();
+    let inlet = Arc::new(pipeline::Inlet::new(
+        pipeline::Pipeline::new(
+            pipeline_config,
+            shared.clone(),
+            pipeline::PipelineOutputs {
+                on_pose: Box::new(move |p| crate::sync::lock(&vpe_on_pose).on_pose(p)),
+                pose: pose_tx,
+                pose_out: pose_out_tx,
+                pose_rate: pipeline::RateLimit::hz(config.output.pose_rate_hz),
+                debug: debug_tx,
+                debug_rate: pipeline::RateLimit::hz(config.output.debug_rate_hz),
+            },
+        ),
+        config.ingest.channel_capacity,
+    ));
+    let subscribers =
+        zenoh_in::subscribe_inputs(&session, ingest.clone(), inlet.clone(), tap.clone()).await?;
+    let (stop_estimator, estimator_stopped) = oneshot::channel::<()>();
     let estimator = tokio::spawn(pipeline::run(
-        rx,
+        inlet.clone(),
         cmd_rx,
-        pipeline_config,
         ingest.clone(),
-        shared.clone(),
-        pipeline::PipelineOutputs {
-            pose: pose_tx,
-            debug: debug_tx,
-            on_pose: Box::new(move |p| crate::sync::lock(&vpe_on_pose).on_pose(p)),
+        async move {
+            let _ = estimator_stopped.await;
         },
     ));
+    let http_addr = listeners.http.local_addr().map_err(RunError::Http)?;
+    let dashboard_url = dashboard_url(&config.http, http_addr);
+    let state = Arc::new(AppState {
+        config: config.clone(),
+        ingest: ingest.clone(),
+        pipeline: shared.clone(),
+        hub: hub.clone(),
+        commands: cmd_tx,
+        pose: pose_rx.clone(),
+        faults: options.faults,
+        controls_refused: AtomicU64::new(0),
+        refusals: Default::default(),
+        mavlink_stats: mavlink_stats.clone(),
+        zenoh_out_stats: zenoh_out_stats.clone(),
+        started_us,
+        zenoh_zid: zid.clone(),
+        zenoh_locators: locators.clone(),
+        inlet: inlet.clone(),
+        zenoh_closed: AtomicBool::new(false),
+        zenoh_routers: AtomicU64::new(0),
+        zenoh_peers: AtomicU64::new(0),
+        recorder: recorder.clone(),
+        dashboard_url,
+    });
     let mavlink = tokio::spawn(mavlink_out::run(
         vpe,
         pose_rx.clone(),
@@ -190,7 +200,7 @@ pub async fn run_with(
         config.output.clone(),
         config.output.prefix_for(&config.service.vehicle),
         ZenohOutInputs {
-            pose: pose_rx.clone(),
+            pose: pose_out_rx.clone(),
             debug: debug_rx.clone(),
             events: shared.events_tx.subscribe(),
             health: Arc::new(move || {
@@ -207,7 +217,7 @@ pub async fn run_with(
         tokio::spawn(record_feed(
             tap.clone(),
             state.clone(),
-            pose_rx.clone(),
+            pose_out_rx.clone(),
             debug_rx.clone(),
             shared.events_tx.subscribe(),
         ))
@@ -253,7 +263,8 @@ pub async fn run_with(
             tracing::warn!("undeclaring subscriber: {e}");
         }
     }
-    // The last sender was in the subscriber callbacks: the estimator task ends.
+    // No more samples: the estimator stops (and its pose channel closes).
+    let _ = stop_estimator.send(());
     let _ = estimator.await;
     status_frames.abort();
     zenoh_links.abort();
@@ -450,8 +461,8 @@ const RECORD_HEALTH_INTERVAL: Duration = Duration::from_secs(1);
 /// The debug series go to the recorder at most this often.
 const RECORD_DEBUG_INTERVAL: Duration = Duration::from_millis(50);
 
-/// Feeds the recorder what is not tapped where it is made: the fused poses (at the pose
-/// output's rate, `[output] pose_rate_hz`, as Zenoh gets them), the debug series
+/// Feeds the recorder what is not tapped where it is made: the fused poses (`pose`: at the
+/// pose output's rate, `[output] pose_rate_hz`, as Zenoh gets them), the debug series
 /// (≤ 20 Hz), events and health (1 Hz).
 async fn record_feed(
     tap: crate::tap::Tap,
@@ -463,19 +474,13 @@ async fn record_feed(
     let mut health = tokio::time::interval(RECORD_HEALTH_INTERVAL);
     health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut debug_sent = tokio::time::Instant::now();
-    let pose_period_us = (1e6 / state.config.output.pose_rate_hz.max(1.0)) as i64;
-    let mut pose_sent_us: Option<i64> = None;
     loop {
         tokio::select! {
             changed = pose.changed() => {
                 if changed.is_err() { break; }
                 let p = pose.borrow_and_update().clone();
                 if let Some(p) = p {
-                    // On the pose's own clock, less a little jitter.
-                    if pose_sent_us.is_none_or(|s| p.time_us - s >= pose_period_us * 9 / 10) {
-                        pose_sent_us = Some(p.time_us);
-                        tap.pose(p);
-                    }
+                    tap.pose(p);
                 }
             }
             changed = debug.changed() => {

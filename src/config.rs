@@ -278,7 +278,8 @@ impl Default for HttpConfig {
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct IngestConfig {
-    /// Capacity of the queue from the Zenoh callbacks to the estimator task.
+    /// Samples waiting while another thread holds the estimator (they are fused on the
+    /// Zenoh thread that receives them otherwise).
     pub channel_capacity: usize,
     /// An input arriving faster than this many times its `rate_hz` (plus 20 Hz) has
     /// the excess shed and counted; 0 disables the limit.
@@ -383,8 +384,10 @@ pub struct OutputConfig {
     pub ros2_debug_prefix: String,
     /// frame_id in the ROS headers.
     pub ros2_frame_id: String,
-    /// Largest pose rate on Zenoh, Hz.
+    /// Largest pose rate on Zenoh (and to the recorder), Hz.
     pub pose_rate_hz: f64,
+    /// Largest rate of the debug series on Zenoh, Hz: each series' newest point.
+    pub debug_rate_hz: f64,
     /// Announce the ROS 2 outputs with zenoh-bridge-ros2dds liveliness tokens, so ROS 2
     /// tools see the topics with their types, and list the bridges' topics.
     pub ros2_announce: bool,
@@ -400,6 +403,7 @@ pub const DEFAULT_POSE_KEY: &str = "data_fusion/pose_msg";
 pub const DEFAULT_DEBUG_PREFIX: &str = "data_fusion";
 pub const DEFAULT_ROS_FRAME_ID: &str = "map";
 pub const DEFAULT_POSE_RATE_HZ: f64 = 50.0;
+pub const DEFAULT_DEBUG_RATE_HZ: f64 = 50.0;
 
 impl Default for OutputConfig {
     fn default() -> Self {
@@ -412,6 +416,7 @@ impl Default for OutputConfig {
             ros2_debug_prefix: DEFAULT_DEBUG_PREFIX.into(),
             ros2_frame_id: DEFAULT_ROS_FRAME_ID.into(),
             pose_rate_hz: DEFAULT_POSE_RATE_HZ,
+            debug_rate_hz: DEFAULT_DEBUG_RATE_HZ,
             ros2_announce: true,
             ros2_qos: DEFAULT_QOS.into(),
             ros_distro: "humble".into(),
@@ -692,11 +697,13 @@ impl Config {
                 self.mavlink.max_age_ms
             ));
         }
-        if !(self.output.pose_rate_hz.is_finite() && self.output.pose_rate_hz > 0.0) {
-            return Err(format!(
-                "output.pose_rate_hz = {} must be positive",
-                self.output.pose_rate_hz
-            ));
+        for (name, rate) in [
+            ("pose_rate_hz", self.output.pose_rate_hz),
+            ("debug_rate_hz", self.output.debug_rate_hz),
+        ] {
+            if !(rate.is_finite() && rate > 0.0) {
+                return Err(format!("output.{name} = {rate} must be positive"));
+            }
         }
         for (name, key) in [
             (

@@ -14,7 +14,8 @@
 //! - [`config`]: the one TOML config struct, its defaults and environment overrides.
 //! - [`ingest`]: payload → validated samples with per-input counters; [`ingest::zenoh_in`]
 //!   wires Zenoh subscribers to it.
-//! - [`pipeline`]: the estimator task: samples in, pose/events/live series out.
+//! - [`pipeline`]: the estimator in the service: samples in (fused on the thread that
+//!   brings them, through its `Inlet`), pose/events/live series out.
 //! - [`output`]: the fused pose out: MAVLink (VISION_POSITION_ESTIMATE) and Zenoh.
 //! - [`ros_graph`]: ROS 2 graph presence via the bridge's liveliness tokens.
 //! - [`tap`]: copies for the recorder from the data path, never waiting; [`record`]: the

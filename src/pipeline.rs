@@ -1,7 +1,9 @@
-//! The estimator task: samples from ingest go through the (pure) estimator; the fused
-//! pose goes to the outputs through a `watch` channel (latest value wins, nobody waits),
-//! events and live series go to the websocket hub, and a status snapshot is kept for
-//! the HTTP API. Controls arrive as [`Command`]s.
+//! The estimator in the service: samples from ingest go through the (pure) estimator on
+//! the thread that brings them ([`Inlet`]); the VPE leaves from there at once, the fused
+//! pose goes to the other outputs through a `watch` channel (latest value wins, nobody
+//! waits), events and live series go to the websocket hub, and a status snapshot is
+//! kept for the HTTP API. The estimator's task ([`run`]) does the periodic health check
+//! and the control API's [`Command`]s.
 
 use crate::estimator::{
     DebugSeries, DebugTopic, Estimator, EstimatorConfig, EstimatorEvent, EstimatorStatus, Event,
@@ -14,7 +16,8 @@ use crate::ingest::Ingest;
 use crate::protocol::{FlowPlot, ServerFrame, Tick, TickPose};
 use crate::sample::{Micros, Sample};
 use serde_json::Value;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
+use std::future::Future;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
@@ -29,7 +32,7 @@ pub enum Command {
     StartFlowCalibration,
 }
 
-/// What the estimator task shares with the rest of the service.
+/// What the estimator shares with the rest of the service.
 pub struct PipelineShared {
     pub hub: Arc<Hub>,
     /// Latest estimator status (`None` before the task's first refresh).
@@ -163,115 +166,312 @@ impl TickBuilder {
     }
 }
 
-/// Everything the estimator task is built from.
+/// Everything the estimator is built from.
 pub struct PipelineConfig {
     pub estimator: EstimatorConfig,
     pub health: HealthConfig,
     pub inputs: InputList,
 }
 
-/// Where the estimator task's results go.
+/// Where the estimator's results go.
 pub struct PipelineOutputs {
-    pub pose: PoseSender,
-    pub debug: DebugSender,
+    /// Called with every new pose before anything else (the VPE leaves from here).
     pub on_pose: PoseHook,
+    /// The newest pose, replaced with every pose; read when wanted (status API, the
+    /// MAVLink output's staleness check), not waited on.
+    pub pose: PoseSender,
+    /// Poses at the output rate (`[output] pose_rate_hz`), for the outputs that wait
+    /// for each one (Zenoh, the recorder).
+    pub pose_out: PoseSender,
+    pub pose_rate: RateLimit,
+    /// The debug series at `[output] debug_rate_hz`.
+    pub debug: DebugSender,
+    pub debug_rate: RateLimit,
+}
+
+/// At most one item per period of sample time, on a fixed grid: however the samples
+/// jitter, the rate never exceeds the limit for long, and never falls to half of it
+/// (as "a period since the last one" would, with samples just short of the period).
+#[derive(Debug, Clone)]
+pub struct RateLimit {
+    period_us: i64,
+    next_us: Option<i64>,
+}
+
+impl RateLimit {
+    /// `rate_hz` must be positive (the config checks it).
+    pub fn hz(rate_hz: f64) -> Self {
+        Self {
+            period_us: ((1e6 / rate_hz).round() as i64).max(1),
+            next_us: None,
+        }
+    }
+
+    /// Whether an item at sample time `t` goes out (and is counted as gone).
+    pub fn due(&mut self, t: i64) -> bool {
+        let p = self.period_us;
+        let next = match self.next_us {
+            Some(n) if t < n && t >= n - p => return false,
+            // On the grid.
+            Some(n) if t >= n && t - n < p => n + p,
+            // The first, a gap of a period or more, or time went back: a new grid.
+            _ => t + p,
+        };
+        self.next_us = Some(next);
+        true
+    }
 }
 
 /// Health is re-checked, and the status snapshot refreshed, this often (staleness and an
 /// estimate turning invalid show without samples).
 const HEALTH_TICK: std::time::Duration = std::time::Duration::from_millis(100);
 
-/// Run until the sample channel closes.
-pub async fn run(
-    mut samples: mpsc::Receiver<Sample>,
-    mut commands: CommandReceiver,
-    config: PipelineConfig,
-    ingest: Arc<Ingest>,
-    shared: Arc<PipelineShared>,
+/// The estimator and where its results go: everything a sample touches. Whichever
+/// thread holds it fuses (see [`Inlet`]).
+pub struct Pipeline {
+    fusion: Fusion,
+    ticks: TickBuilder,
+    last_pose_us: Option<i64>,
     outputs: PipelineOutputs,
-) {
-    let PipelineOutputs {
-        pose: pose_tx,
-        debug: debug_tx,
-        mut on_pose,
-    } = outputs;
-    let mut fusion = Fusion::new(config.estimator, config.health, &config.inputs);
-    let mut ticks = TickBuilder::default();
-    let mut last_pose_us: Option<i64> = None;
-    let mut rejected_seen: BTreeMap<String, u64> = BTreeMap::new();
-    let mut restarts_seen: BTreeMap<String, u64> = BTreeMap::new();
-    let mut health_timer = tokio::time::interval(HEALTH_TICK);
-    health_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let started = shared.started_us;
-    loop {
-        tokio::select! {
-            s = samples.recv() => {
-                let Some(s) = s else { break };
-                shared.consumed.fetch_add(1, Relaxed);
-                let events = fusion.process(&s, s.arrival_us);
-                publish_events(&shared, &events);
-                let est = &fusion.est;
-                let Some(t) = est.state_time() else { continue };
-                if **debug_tx.borrow() != *est.debug() {
-                    debug_tx.send_replace(Arc::new(est.debug().clone()));
-                }
-                if let Some(p) = est.pose() {
-                    if last_pose_us != Some(p.time_us) {
-                        last_pose_us = Some(p.time_us);
-                        // The autopilot's copy first, from this task: no hop.
-                        on_pose(&p);
-                        pose_tx.send_replace(Some(Arc::new(p)));
-                    }
-                }
-                if let Some(tick) = ticks.build(est, t, started) {
-                    let frame = ServerFrame::Tick(Box::new(tick));
-                    shared.hub.publish(t, &frame);
-                }
-            }
-            _ = health_timer.tick() => {
-                let now = crate::clock::now_us();
-                // Rejections at ingest count against the sensor's health too.
-                for st in ingest.statuses(now) {
-                    let seen = rejected_seen.entry(st.id.clone()).or_insert(0);
-                    if st.rejected > *seen {
-                        *seen = st.rejected;
-                        let text = st.last_error.clone().unwrap_or_else(|| "rejected".into());
-                        fusion.rejected(&st.id, "input_rejected", &text, now);
-                    }
-                    let seen = restarts_seen.entry(st.id.clone()).or_insert(0);
-                    if st.clock_restarts > *seen {
-                        *seen = st.clock_restarts;
-                        let text = st.last_clock_restart.clone().unwrap_or_default();
-                        let event = EstimatorEvent::new(
-                            now,
-                            Some(&st.id),
-                            format!("{}: {text}", st.id),
-                            Event::ClockRestart {
-                                clock_restarts: st.clock_restarts,
-                            },
-                        );
-                        publish_events(&shared, &[event]);
-                    }
-                }
-                let events = fusion.tick(now);
-                publish_events(&shared, &events);
-                // The status snapshot is refreshed here (10 Hz) with samples or without
-                // (staleness, an estimate turning invalid), and after a command.
-                refresh_status(&shared, &fusion);
-            }
-            Some((cmd, reply)) = commands.recv() => {
-                let now = fusion.est.state_time().unwrap_or_else(crate::clock::now_us);
-                let events = match cmd {
-                    Command::ResetOrigin => fusion.est.reset_origin(now),
-                    Command::StartFlowCalibration => fusion.est.start_flow_calibration(now),
-                };
-                publish_events(&shared, &events);
-                refresh_status(&shared, &fusion);
-                let _ = reply.send(events);
-            }
+    shared: Arc<PipelineShared>,
+    /// Ingest's rejection and clock-restart counters already reported, per input.
+    rejected_seen: BTreeMap<String, u64>,
+    restarts_seen: BTreeMap<String, u64>,
+}
+
+impl Pipeline {
+    pub fn new(
+        config: PipelineConfig,
+        shared: Arc<PipelineShared>,
+        outputs: PipelineOutputs,
+    ) -> Self {
+        Self {
+            fusion: Fusion::new(config.estimator, config.health, &config.inputs),
+            ticks: TickBuilder::default(),
+            last_pose_us: None,
+            outputs,
+            shared,
+            rejected_seen: BTreeMap::new(),
+            restarts_seen: BTreeMap::new(),
         }
     }
-    refresh_status(&shared, &fusion);
+
+    /// Fuse one sample and hand on what it changed: the autopilot's copy of a new pose
+    /// first, then the rest.
+    fn sample(&mut self, s: &Sample) {
+        self.shared.consumed.fetch_add(1, Relaxed);
+        let events = self.fusion.process(s, s.arrival_us);
+        let est = &self.fusion.est;
+        let out = &mut self.outputs;
+        if let Some(p) = est.pose() {
+            if self.last_pose_us != Some(p.time_us) {
+                self.last_pose_us = Some(p.time_us);
+                // From this thread, before anything else: no hop, no wait.
+                (out.on_pose)(&p);
+                let p = Arc::new(p);
+                if out.pose_rate.due(p.time_us) {
+                    out.pose_out.send_replace(Some(p.clone()));
+                }
+                out.pose.send_replace(Some(p));
+            }
+        }
+        publish_events(&self.shared, &events);
+        let Some(t) = est.state_time() else { return };
+        // The debug series change with nearly every sample: shared at their own rate,
+        // so nobody is woken (and nothing copied) per sample.
+        if out.debug_rate.due(t) && **out.debug.borrow() != *est.debug() {
+            out.debug.send_replace(Arc::new(est.debug().clone()));
+        }
+        if let Some(tick) = self.ticks.build(est, t, self.shared.started_us) {
+            let frame = ServerFrame::Tick(Box::new(tick));
+            self.shared.hub.publish(t, &frame);
+        }
+    }
+
+    /// The periodic health check (with or without samples), ingest's rejections and
+    /// clock restarts counted against the sensors, and the status snapshot refreshed.
+    fn health_tick(&mut self, ingest: &Ingest, now: i64) {
+        for st in ingest.statuses(now) {
+            let seen = self.rejected_seen.entry(st.id.clone()).or_insert(0);
+            if st.rejected > *seen {
+                *seen = st.rejected;
+                let text = st.last_error.clone().unwrap_or_else(|| "rejected".into());
+                self.fusion.rejected(&st.id, "input_rejected", &text, now);
+            }
+            let seen = self.restarts_seen.entry(st.id.clone()).or_insert(0);
+            if st.clock_restarts > *seen {
+                *seen = st.clock_restarts;
+                let text = st.last_clock_restart.clone().unwrap_or_default();
+                let event = EstimatorEvent::new(
+                    now,
+                    Some(&st.id),
+                    format!("{}: {text}", st.id),
+                    Event::ClockRestart {
+                        clock_restarts: st.clock_restarts,
+                    },
+                );
+                publish_events(&self.shared, &[event]);
+            }
+        }
+        let events = self.fusion.tick(now);
+        publish_events(&self.shared, &events);
+        self.refresh_status();
+    }
+
+    fn command(&mut self, cmd: Command) -> Vec<EstimatorEvent> {
+        let est = &mut self.fusion.est;
+        let now = est.state_time().unwrap_or_else(crate::clock::now_us);
+        let events = match cmd {
+            Command::ResetOrigin => est.reset_origin(now),
+            Command::StartFlowCalibration => est.start_flow_calibration(now),
+        };
+        publish_events(&self.shared, &events);
+        self.refresh_status();
+        events
+    }
+
+    fn refresh_status(&self) {
+        let st = self.fusion.est.state_summary();
+        let h = verdicts(&self.fusion, &st, crate::clock::now_us());
+        *crate::sync::lock(&self.shared.status) = Some(st);
+        *crate::sync::lock(&self.shared.health) = h;
+    }
+}
+
+/// Why a sample did not get in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum InletError {
+    #[error("the estimator's queue is full")]
+    Full,
+    #[error("the estimator has stopped")]
+    Closed,
+}
+
+/// The way samples reach the estimator, from any thread. A sample is fused at once on
+/// the thread that brings it (Zenoh's receiving thread) when the estimator is free, so
+/// the sample's trip to the VPE has no thread hop; when another thread is fusing, it
+/// waits in a bounded queue and that thread fuses it before letting go (a full queue
+/// refuses, and the caller counts the drop: nothing waits on the estimator).
+pub struct Inlet {
+    queue: Mutex<VecDeque<Sample>>,
+    capacity: usize,
+    pipeline: Mutex<Option<Pipeline>>,
+}
+
+impl Inlet {
+    pub fn new(pipeline: Pipeline, capacity: usize) -> Self {
+        Self {
+            queue: Mutex::new(VecDeque::with_capacity(capacity.min(1024))),
+            capacity,
+            pipeline: Mutex::new(Some(pipeline)),
+        }
+    }
+
+    /// Hand over a sample; it is fused before this returns unless another thread holds
+    /// the estimator (which then fuses it).
+    pub fn push(&self, s: Sample) -> Result<(), InletError> {
+        {
+            let mut q = crate::sync::lock(&self.queue);
+            if q.len() >= self.capacity {
+                return Err(InletError::Full);
+            }
+            q.push_back(s);
+        }
+        self.fuse_queued_if_free()
+    }
+
+    /// Run `f` on the pipeline, waiting while another thread fuses; then fuse what was
+    /// queued meanwhile. `None` once closed.
+    pub fn with<R>(&self, f: impl FnOnce(&mut Pipeline) -> R) -> Option<R> {
+        let mut held = crate::sync::lock(&self.pipeline);
+        let r = held.as_mut().map(f);
+        self.fuse_queued(&mut held);
+        drop(held);
+        // Ignored: closed is closed for the samples pushed meanwhile as well.
+        let _ = self.fuse_queued_if_free();
+        r
+    }
+
+    /// Samples waiting (the estimator is busy on another thread).
+    pub fn queue_len(&self) -> usize {
+        crate::sync::lock(&self.queue).len()
+    }
+
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    pub fn is_closed(&self) -> bool {
+        crate::sync::lock(&self.pipeline).is_none()
+    }
+
+    /// Stop: the pipeline is taken out (its pose and debug channels close with it, so
+    /// the outputs end); later samples are refused.
+    pub fn close(&self) -> Option<Pipeline> {
+        crate::sync::lock(&self.pipeline).take()
+    }
+
+    /// Whoever holds the pipeline fuses the queue until it is empty, and looks again
+    /// after letting go: a sample queued by a thread that found the pipeline held is
+    /// then always fused by the holder (it was queued before the holder let go).
+    fn fuse_queued_if_free(&self) -> Result<(), InletError> {
+        while let Some(mut held) = crate::sync::try_lock(&self.pipeline) {
+            if held.is_none() {
+                crate::sync::lock(&self.queue).clear();
+                return Err(InletError::Closed);
+            }
+            self.fuse_queued(&mut held);
+            drop(held);
+            if crate::sync::lock(&self.queue).is_empty() {
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    fn fuse_queued(&self, held: &mut Option<Pipeline>) {
+        let Some(p) = held.as_mut() else { return };
+        // The queue's lock is not held while fusing: pushers never wait on the filter.
+        while let Some(s) = crate::sync::lock(&self.queue).pop_front() {
+            p.sample(&s);
+        }
+    }
+}
+
+impl crate::ingest::zenoh_in::SampleSink for Inlet {
+    fn take(&self, s: Sample) -> bool {
+        self.push(s).is_ok()
+    }
+}
+
+/// The estimator's own task: the periodic health check and the control API's
+/// commands (samples are fused by the threads that bring them, through the [`Inlet`]).
+/// Runs until `stop` resolves, then closes the inlet.
+pub async fn run(
+    inlet: Arc<Inlet>,
+    mut commands: CommandReceiver,
+    ingest: Arc<Ingest>,
+    stop: impl Future<Output = ()>,
+) {
+    let mut health_timer = tokio::time::interval(HEALTH_TICK);
+    health_timer.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    tokio::pin!(stop);
+    loop {
+        tokio::select! {
+            _ = health_timer.tick() => {
+                let now = crate::clock::now_us();
+                inlet.with(|p| p.health_tick(&ingest, now));
+            }
+            Some((cmd, reply)) = commands.recv() => {
+                let events = inlet.with(|p| p.command(cmd)).unwrap_or_default();
+                let _ = reply.send(events);
+            }
+            _ = &mut stop => break,
+        }
+    }
+    if let Some(p) = inlet.close() {
+        p.refresh_status();
+    }
 }
 
 /// Each sensor's health as the status API shows it.
@@ -301,13 +501,6 @@ pub fn verdicts(
         .collect()
 }
 
-fn refresh_status(shared: &PipelineShared, fusion: &Fusion) {
-    let st = fusion.est.state_summary();
-    let h = verdicts(fusion, &st, crate::clock::now_us());
-    *crate::sync::lock(&shared.status) = Some(st);
-    *crate::sync::lock(&shared.health) = h;
-}
-
 /// Count, log and send events to the outputs and the websocket hub.
 pub fn publish_events(shared: &PipelineShared, events: &[EstimatorEvent]) {
     for e in events {
@@ -323,5 +516,150 @@ pub fn publish_events(shared: &PipelineShared, events: &[EstimatorEvent]) {
         // No receiver is not an error: outputs may be off.
         let _ = shared.events_tx.send(Arc::new(event.clone()));
         shared.hub.publish(e.time_us, &ServerFrame::Event { event });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sample::{Imu, SensorData, SensorKind};
+    use nalgebra::Vector3;
+
+    #[test]
+    fn the_rate_limit_keeps_the_rate_however_samples_jitter() {
+        // Poses every 5 ms ± 0.3 ms, limited to 50 Hz: 10 s gives 500, not the ~400
+        // of "a whole period since the last one" (which waits for the 25 ms sample
+        // whenever the 20 ms one came a little early).
+        let mut limit = RateLimit::hz(50.0);
+        let mut sent = Vec::new();
+        for i in 0..2000_i64 {
+            let jitter = [0, 300, -300, 150][(i % 4) as usize];
+            let t = 1_000_000 + i * 5_000 + jitter;
+            if limit.due(t) {
+                sent.push(t);
+            }
+        }
+        assert!((499..=501).contains(&sent.len()), "{} sent", sent.len());
+        // Never two closer than the samples allow around one period.
+        let closest = sent.windows(2).map(|w| w[1] - w[0]).min().unwrap_or(0);
+        assert!(closest >= 14_000, "{closest} µs apart");
+    }
+
+    #[test]
+    fn the_rate_limit_starts_again_after_a_gap_or_a_clock_going_back() {
+        let mut limit = RateLimit::hz(10.0);
+        assert!(limit.due(1_000_000));
+        assert!(!limit.due(1_050_000));
+        assert!(limit.due(1_100_000));
+        // A gap: the next sample goes at once.
+        assert!(limit.due(5_000_000));
+        assert!(!limit.due(5_010_000));
+        // Time went back (a clock restart): at once, not a period after the old time.
+        assert!(limit.due(2_000_000));
+        assert!(!limit.due(2_050_000));
+    }
+
+    fn imu(t: i64) -> Sample {
+        Sample {
+            source: "imu".into(),
+            stamp_us: Some(t),
+            arrival_us: t,
+            data: SensorData::Imu(Imu::from_rates(
+                Some(Vector3::zeros()),
+                Some(Vector3::new(0.0, 0.0, 9.81)),
+            )),
+        }
+    }
+
+    /// An inlet with a real pipeline (one IMU input).
+    fn inlet(capacity: usize) -> (Arc<Inlet>, Arc<PipelineShared>) {
+        let shared = Arc::new(PipelineShared::new(Arc::new(Hub::default()), 0));
+        let config = PipelineConfig {
+            estimator: EstimatorConfig::default(),
+            health: HealthConfig::default(),
+            inputs: vec![crate::fusion::InputSpec {
+                id: "imu".into(),
+                kind: SensorKind::Imu,
+                rate_hz: 200.0,
+                enabled: true,
+            }],
+        };
+        let outputs = PipelineOutputs {
+            on_pose: Box::new(|_| {}),
+            pose: watch::channel(None).0,
+            pose_out: watch::channel(None).0,
+            pose_rate: RateLimit::hz(50.0),
+            debug: watch::channel(Arc::new(DebugSeries::default())).0,
+            debug_rate: RateLimit::hz(50.0),
+        };
+        let p = Pipeline::new(config, shared.clone(), outputs);
+        (Arc::new(Inlet::new(p, capacity)), shared)
+    }
+
+    #[test]
+    fn a_sample_is_fused_on_the_thread_that_brings_it() {
+        let (inlet, shared) = inlet(8);
+        inlet.push(imu(1_000_000)).unwrap();
+        assert_eq!(shared.consumed.load(Relaxed), 1);
+        assert_eq!(inlet.queue_len(), 0);
+    }
+
+    #[test]
+    fn samples_brought_while_another_thread_fuses_are_fused_by_that_thread() {
+        // The task holds the pipeline; samples pushed meanwhile from another thread
+        // return at once (queued), and are fused before the holder lets go.
+        let (inlet, shared) = inlet(8);
+        let other = inlet.clone();
+        inlet.with(|_| {
+            std::thread::spawn(move || {
+                for i in 0..3 {
+                    other.push(imu(1_000_000 + i * 5_000)).unwrap();
+                }
+            })
+            .join()
+            .unwrap();
+            assert_eq!(shared.consumed.load(Relaxed), 0, "fused while held");
+        });
+        assert_eq!(shared.consumed.load(Relaxed), 3);
+        assert_eq!(inlet.queue_len(), 0);
+    }
+
+    #[test]
+    fn many_threads_at_once_lose_nothing() {
+        let (inlet, shared) = inlet(100_000);
+        let threads: Vec<_> = (0..4_i64)
+            .map(|k| {
+                let inlet = inlet.clone();
+                std::thread::spawn(move || {
+                    for i in 0..2_000 {
+                        inlet.push(imu(1_000_000 + k * 100 + i * 5_000)).unwrap();
+                    }
+                })
+            })
+            .collect();
+        for t in threads {
+            t.join().unwrap();
+        }
+        assert_eq!(shared.consumed.load(Relaxed), 8_000);
+        assert_eq!(inlet.queue_len(), 0);
+    }
+
+    #[test]
+    fn a_full_queue_or_a_closed_estimator_refuses() {
+        let (inlet, shared) = inlet(1);
+        let other = inlet.clone();
+        inlet.with(|_| {
+            std::thread::spawn(move || {
+                assert_eq!(other.push(imu(1_000_000)), Ok(()));
+                assert_eq!(other.push(imu(1_005_000)), Err(InletError::Full));
+            })
+            .join()
+            .unwrap();
+        });
+        assert_eq!(shared.consumed.load(Relaxed), 1);
+        assert!(inlet.close().is_some());
+        assert_eq!(inlet.push(imu(1_010_000)), Err(InletError::Closed));
+        assert!(inlet.with(|_| ()).is_none());
+        assert_eq!(shared.consumed.load(Relaxed), 1);
     }
 }

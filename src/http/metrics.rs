@@ -148,7 +148,7 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
     );
     m.counter(
         "ingest_consumed",
-        "Samples the estimator task took from the queue",
+        "Samples the estimator took in",
         ing.consumed,
     );
 

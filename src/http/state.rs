@@ -12,13 +12,12 @@ use crate::output::mavlink_out::MavlinkStats;
 use crate::output::zenoh_out::ZenohOutStats;
 use crate::output::OutputStatus;
 use crate::pipeline::{self, CommandSender, PipelineShared, PoseReceiver};
-use crate::sample::{Micros, Sample};
+use crate::sample::Micros;
 use crate::sim::faults::FaultSchedule;
 use serde::Serialize;
 use serde_json::json;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
-use tokio::sync::mpsc;
 
 /// State shared by the HTTP handlers.
 pub struct AppState {
@@ -37,7 +36,7 @@ pub struct AppState {
     pub started_us: Micros,
     pub zenoh_zid: String,
     pub zenoh_locators: Vec<String>,
-    pub(crate) queue: mpsc::WeakSender<Sample>,
+    pub(crate) inlet: Arc<pipeline::Inlet>,
     pub(crate) zenoh_closed: AtomicBool,
     /// Zenoh routers and peers this session is connected to, refreshed every second.
     pub(crate) zenoh_routers: AtomicU64,
@@ -56,9 +55,10 @@ impl AppState {
     /// `GET /api/v1/status` (web/PROTOCOL.md).
     pub fn status(&self) -> Status {
         let now = now_us();
-        let (queue_capacity, queue_free) = match self.queue.upgrade() {
-            Some(tx) => (tx.max_capacity(), tx.capacity()),
-            None => (self.config.ingest.channel_capacity, 0),
+        let queue_capacity = self.inlet.capacity();
+        let queue_free = match self.inlet.is_closed() {
+            false => queue_capacity.saturating_sub(self.inlet.queue_len()),
+            true => 0,
         };
         let cfg = &self.config;
         Status {

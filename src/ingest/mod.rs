@@ -2,8 +2,8 @@
 //! per-input counters that `/api/v1/status` shows.
 //!
 //! [`Ingest::accept`] is synchronous and transport-free, so it is tested without a
-//! network; [`zenoh_in`] only wires Zenoh subscribers to it and forwards the samples to
-//! the estimator task through a bounded channel (overload is counted as `dropped`).
+//! network; [`zenoh_in`] only wires Zenoh subscribers to it and hands the samples to
+//! the estimator's inlet (overload is counted as `dropped`).
 
 pub mod stamps;
 pub mod zenoh_in;

@@ -1,7 +1,8 @@
 //! Zenoh input adapter: one session, one subscriber per enabled input key expression.
 //! The callbacks decode on Zenoh's thread (decoding is cheap and pure) and hand the
-//! samples to the estimator task with `try_send`: a full queue drops and counts, it
-//! never blocks Zenoh.
+//! samples to a [`SampleSink`] (the estimator's inlet, which fuses them there when the
+//! estimator is free and queues them when another thread is fusing): a sample it does
+//! not take is dropped and counted, and Zenoh is never blocked.
 
 use super::{now_us, Ingest};
 use crate::config::{ZenohConfig, ZenohMode};
@@ -9,7 +10,6 @@ use crate::sample::Sample;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use thiserror::Error;
-use tokio::sync::mpsc;
 
 #[derive(Debug, Error)]
 pub enum ZenohError {
@@ -89,11 +89,17 @@ pub async fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, ZenohErro
     })
 }
 
+/// Where the subscribers' samples go, on Zenoh's thread.
+pub trait SampleSink: Send + Sync + 'static {
+    /// Take a sample, never waiting; `false`: not taken (counted as dropped).
+    fn take(&self, s: Sample) -> bool;
+}
+
 /// Declare one subscriber per enabled input key expression.
 pub async fn subscribe_inputs(
     session: &zenoh::Session,
     ingest: Arc<Ingest>,
-    tx: mpsc::Sender<Sample>,
+    sink: Arc<dyn SampleSink>,
     tap: crate::tap::Tap,
 ) -> Result<Vec<zenoh::pubsub::Subscriber<()>>, ZenohError> {
     let mut subs = Vec::new();
@@ -103,7 +109,7 @@ pub async fn subscribe_inputs(
         }
         for key in input.config.key_exprs() {
             let ingest = ingest.clone();
-            let tx = tx.clone();
+            let sink = sink.clone();
             let tap = tap.clone();
             let sub = session
                 .declare_subscriber(key.as_str())
@@ -117,7 +123,7 @@ pub async fn subscribe_inputs(
                     tap.input(arrival, idx, key, &payload);
                     for s in ingest.accept(input, key, &payload, arrival) {
                         tap.decoded(idx, &s);
-                        if tx.try_send(s).is_err() {
+                        if !sink.take(s) {
                             input.counters.dropped.fetch_add(1, Relaxed);
                         }
                     }

@@ -147,7 +147,9 @@ impl<'a> PoseMessage<'a> {
 
 /// Everything the Zenoh output publishes from.
 pub struct ZenohOutInputs {
+    /// Poses at the output rate (the estimator limits it).
     pub pose: PoseReceiver,
+    /// The debug series at their rate (likewise).
     pub debug: DebugReceiver,
     pub events: broadcast::Receiver<Arc<Value>>,
     /// Builds the health JSON (the status API's sensors and estimator).
@@ -164,8 +166,6 @@ pub async fn run(
     mut inp: ZenohOutInputs,
     stats: Arc<ZenohOutStats>,
 ) {
-    let min_pose_interval_us = (1e6 / cfg.pose_rate_hz) as i64;
-    let mut last_pose_us: Option<i64> = None;
     let mut sent_debug: BTreeMap<DebugTopic, i64> = BTreeMap::new();
     let mut health = tokio::time::interval(HEALTH_INTERVAL);
     health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -193,10 +193,6 @@ pub async fn run(
             changed = inp.pose.changed() => {
                 if changed.is_err() { break; }
                 let Some(p) = inp.pose.borrow_and_update().clone() else { continue };
-                if last_pose_us.is_some_and(|l| p.time_us >= l && p.time_us - l < min_pose_interval_us) {
-                    continue;
-                }
-                last_pose_us = Some(p.time_us);
                 let mut ok = true;
                 if cfg.json {
                     ok &= put(format!("{prefix}/pose"), PoseMessage::of(&p, &cfg.ros2_frame_id).to_bytes()).await;
