@@ -46,7 +46,9 @@ pub enum SensorData {
     Gnss(GnssFix),
     Flow(OpticalFlow),
     Range(Range),
-    Odometry(Odometry),
+    /// Boxed: with its two 6×6 covariances it is twice the size of any other sample, and
+    /// samples are moved (sorted, logged, queued) by value.
+    Odometry(Box<Odometry>),
     /// The autopilot's own estimate (LOCAL_POSITION_NED, GLOBAL_POSITION_INT): shown
     /// for comparison only, never fused (it would close a feedback loop through our VPE).
     AutopilotEstimate(AutopilotEstimate),

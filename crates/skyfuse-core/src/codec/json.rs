@@ -257,7 +257,7 @@ pub fn decode(payload: &[u8]) -> Result<Decoded, DecodeError> {
             };
             (
                 stamp_us,
-                SensorData::Odometry(Odometry {
+                SensorData::Odometry(Box::new(Odometry {
                     position: vec3("odometry.position", position)?,
                     orientation: quat("odometry.orientation", orientation)?,
                     velocity: velocity.map(|v| vec3("odometry.velocity", v)).transpose()?,
@@ -268,7 +268,7 @@ pub fn decode(payload: &[u8]) -> Result<Decoded, DecodeError> {
                     child_frame_id: String::new(),
                     reset_counter: None,
                     quality: None,
-                }),
+                })),
             )
         }
     };

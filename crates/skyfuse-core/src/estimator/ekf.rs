@@ -120,7 +120,7 @@ impl Ekf {
 
     /// True if every state and covariance entry is finite.
     pub fn is_finite(&self) -> bool {
-        self.x.iter().all(|v| v.is_finite()) && self.p.iter().all(|v| v.is_finite())
+        all_finite(self.x.as_slice()) && all_finite(self.p.as_slice())
     }
 
     /// Propagate by `dt` seconds with specific force `f_body` (body FLU) rotated by `rot`
@@ -522,9 +522,47 @@ pub fn chi2_gate(k: usize, sigma: f64) -> f64 {
     0.5 * (lo + hi)
 }
 
+/// Every value finite, looked at with integer operations that vectorise (the whole
+/// covariance is checked with every pose): a finite double's exponent bits, plus one
+/// in their lowest place, stay below the sign bit; an infinity's or a NaN's carry into it.
+fn all_finite(v: &[f64]) -> bool {
+    const EXPONENT: u64 = 0x7ff0_0000_0000_0000;
+    const EXPONENT_ONE: u64 = 1 << 52;
+    let carried = v.iter().fold(0_u64, |acc, x| {
+        acc | ((x.to_bits() & EXPONENT) + EXPONENT_ONE)
+    });
+    carried >> 63 == 0
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn all_finite_is_the_standard_librarys_is_finite_on_every_kind_of_double() {
+        let values = [
+            0.0,
+            -0.0,
+            1.0,
+            -1e300,
+            f64::MAX,
+            f64::MIN,
+            f64::MIN_POSITIVE,
+            5e-324,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            -f64::NAN,
+        ];
+        for v in values {
+            assert_eq!(all_finite(&[1.0, v, 2.0]), v.is_finite(), "{v:e}");
+        }
+        assert!(all_finite(&[]));
+        let mut long = vec![0.5; 600];
+        assert!(all_finite(&long));
+        long[577] = f64::NAN;
+        assert!(!all_finite(&long));
+    }
 
     /// The structured prediction equals the dense F P Fᵀ it replaces, on a full (random,
     /// positive definite) covariance with an odometry block and a GNSS time constant.

@@ -178,6 +178,7 @@ pub struct Estimator {
     late_event_t: Option<i64>,
     /// The caller's clock when it last looked without a sample (see `observe_time`).
     observed_t: Option<i64>,
+    invalid_texts: state::InvalidTexts,
 }
 
 /// A snapshot of the core at most this often, µs. Any earlier snapshot re-runs to the
@@ -192,6 +193,7 @@ impl Estimator {
             *g = ekf::chi2_gate(k, cfg.gate_sigma);
         }
         Self {
+            invalid_texts: state::InvalidTexts::new(&cfg),
             core: Core::new(&cfg),
             log: VecDeque::new(),
             fused: 0,
@@ -457,7 +459,9 @@ impl Estimator {
             angular_velocity = now.rate.or(angular_velocity);
             (present, now.p, now.v, e.cov3(IDX_P), e.cov3(IDX_V))
         };
-        let mut invalid_reason = c.validity(&self.cfg, self.judged_at());
+        let mut invalid_reason = c
+            .validity(&self.cfg, self.judged_at())
+            .map(|why| self.invalid_texts.get(why));
         let finite = position
             .iter()
             .chain(velocity.iter())
@@ -587,7 +591,9 @@ impl Estimator {
 
     pub fn state_summary(&self) -> EstimatorStatus {
         let c = &self.core;
-        let invalid_reason = c.validity(&self.cfg, self.judged_at());
+        let invalid_reason = c
+            .validity(&self.cfg, self.judged_at())
+            .map(|why| self.invalid_texts.get(why));
         let mut sources = c.stats.clone();
         for (s, st) in sources.iter_mut() {
             st.usable = self.usable.get(s).is_none_or(|u| u.0);

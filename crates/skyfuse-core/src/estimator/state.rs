@@ -762,41 +762,31 @@ impl Core {
 
     /// Why the estimate is not valid at time `now` (None: valid). `now` is at least the
     /// newest sample's time, later when the caller has seen time pass without samples.
-    pub(super) fn validity(&self, cfg: &EstimatorConfig, now: Option<i64>) -> Option<String> {
+    pub(super) fn validity(&self, cfg: &EstimatorConfig, now: Option<i64>) -> Option<Invalid> {
         if !self.initialised() {
-            return Some("not initialised".into());
+            return Some(Invalid::NotInitialised);
         }
         let t = self.t.unwrap_or(0).max(now.unwrap_or(i64::MIN));
         if let Some(ekf) = self.ekf.as_ref() {
             if !ekf.is_finite() {
-                return Some("non-finite state".into());
+                return Some(Invalid::NonFinite);
             }
         }
         if !self.att.known() {
-            return Some("no attitude".into());
+            return Some(Invalid::NoAttitude);
         }
         let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
         match self.last_aiding {
             Some(l) if t - l <= timeout => {}
-            _ => {
-                return Some(format!(
-                    "no position or velocity source fused for more than {} ms",
-                    cfg.aiding_timeout_ms
-                ))
-            }
+            _ => return Some(Invalid::NoAiding),
         }
         if self.ground.handled(t) {
-            return Some("disarmed but moving (carried by hand): not valid until set down".into());
+            return Some(Invalid::Carried);
         }
         // A height alone (a range finder) leaves the horizontal position dead-reckoned.
         match self.last_h_valid {
             Some(l) if t - l <= timeout => {}
-            _ => {
-                return Some(format!(
-                    "no horizontal position or velocity source fused for more than {} ms",
-                    cfg.aiding_timeout_ms
-                ))
-            }
+            _ => return Some(Invalid::NoHorizontal),
         }
         let var = match (&self.ekf, self.mode_wrls) {
             (Some(e), false) => e.cov3(IDX_P).diagonal(),
@@ -804,11 +794,69 @@ impl Core {
         };
         let max = cfg.max_pos_std_m * cfg.max_pos_std_m;
         if var.iter().any(|v| !v.is_finite() || *v > max) {
-            return Some(format!(
-                "position uncertainty above {} m (1σ)",
-                cfg.max_pos_std_m
-            ));
+            return Some(Invalid::Uncertain);
         }
         None
+    }
+}
+
+/// Why the estimate is not valid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Invalid {
+    NotInitialised,
+    NonFinite,
+    NoAttitude,
+    NoAiding,
+    Carried,
+    NoHorizontal,
+    Uncertain,
+}
+
+impl Invalid {
+    const ALL: [Invalid; 7] = [
+        Invalid::NotInitialised,
+        Invalid::NonFinite,
+        Invalid::NoAttitude,
+        Invalid::NoAiding,
+        Invalid::Carried,
+        Invalid::NoHorizontal,
+        Invalid::Uncertain,
+    ];
+
+    fn text(self, cfg: &EstimatorConfig) -> String {
+        match self {
+            Invalid::NotInitialised => "not initialised".into(),
+            Invalid::NonFinite => "non-finite state".into(),
+            Invalid::NoAttitude => "no attitude".into(),
+            Invalid::NoAiding => format!(
+                "no position or velocity source fused for more than {} ms",
+                cfg.aiding_timeout_ms
+            ),
+            Invalid::Carried => {
+                "disarmed but moving (carried by hand): not valid until set down".into()
+            }
+            Invalid::NoHorizontal => format!(
+                "no horizontal position or velocity source fused for more than {} ms",
+                cfg.aiding_timeout_ms
+            ),
+            Invalid::Uncertain => {
+                format!("position uncertainty above {} m (1σ)", cfg.max_pos_std_m)
+            }
+        }
+    }
+}
+
+/// The reasons' texts, with the config's limits in them, made once: a pose is asked for
+/// with every sample, and is invalid for whole phases of a flight (on the ground).
+#[derive(Debug, Clone)]
+pub(super) struct InvalidTexts([String; 7]);
+
+impl InvalidTexts {
+    pub(super) fn new(cfg: &EstimatorConfig) -> Self {
+        Self(Invalid::ALL.map(|i| i.text(cfg)))
+    }
+
+    pub(super) fn get(&self, why: Invalid) -> String {
+        self.0[why as usize].clone()
     }
 }

@@ -458,7 +458,7 @@ fn invalid_before_initialisation_and_without_aiding() {
         source: Arc::from("t265"),
         stamp_us: Some(1_000),
         arrival_us: 7_000,
-        data: SensorData::Odometry(Odometry {
+        data: SensorData::Odometry(Box::new(Odometry {
             position: Vector3::zeros(),
             orientation: UnitQuaternion::identity(),
             velocity: Some(Vector3::zeros()),
@@ -469,7 +469,7 @@ fn invalid_before_initialisation_and_without_aiding() {
             child_frame_id: "camera".into(),
             reset_counter: None,
             quality: None,
-        }),
+        })),
     });
     let p = est.pose().expect("initialised");
     assert!(p.valid, "{p:?}");

@@ -67,7 +67,7 @@ fn odom(var: f64, x: f64) -> Sample {
         source: Arc::from("t265"),
         stamp_us: None,
         arrival_us: 0,
-        data: SensorData::Odometry(Odometry {
+        data: SensorData::Odometry(Box::new(Odometry {
             position: Vector3::new(x, 0.0, 1.0),
             orientation: UnitQuaternion::identity(),
             velocity: Some(Vector3::zeros()),
@@ -78,7 +78,7 @@ fn odom(var: f64, x: f64) -> Sample {
             child_frame_id: String::new(),
             reset_counter: None,
             quality: None,
-        }),
+        })),
     }
 }
 

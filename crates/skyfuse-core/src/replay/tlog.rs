@@ -184,7 +184,7 @@ pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> TlogLog {
     }
     out.skipped_bytes += bytes.len().saturating_sub(i) as u64;
     // Ground stations log in arrival order; keep it stable for equal stamps.
-    out.samples.sort_by_key(|s| s.stamp_us);
+    super::sort_by_stamp(&mut out.samples);
     progress(total, total);
     out
 }

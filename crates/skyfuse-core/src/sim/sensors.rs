@@ -163,7 +163,7 @@ impl SensorModels {
         match kind {
             SensorKind::Imu => SensorData::Imu(self.imu(s)),
             SensorKind::Attitude => SensorData::Attitude(self.attitude(s)),
-            SensorKind::Odometry => SensorData::Odometry(self.t265_with(s, started)),
+            SensorKind::Odometry => SensorData::Odometry(Box::new(self.t265_with(s, started))),
             SensorKind::Flow => SensorData::Flow(self.flow(s)),
             SensorKind::Range => SensorData::Range(self.range(s)),
             SensorKind::Gnss => SensorData::Gnss(self.gps(s)),

@@ -708,7 +708,7 @@ fn odometry(f: &Fields) -> Result<Mapped, DecodeError> {
         .map(|q| q as i8);
     Ok(Some((
         stamp,
-        SensorData::Odometry(Odometry {
+        SensorData::Odometry(Box::new(Odometry {
             position,
             orientation,
             velocity,
@@ -719,6 +719,6 @@ fn odometry(f: &Fields) -> Result<Mapped, DecodeError> {
             child_frame_id: child.to_string(),
             reset_counter,
             quality,
-        }),
+        })),
     )))
 }

@@ -796,7 +796,7 @@ fn samples() -> Vec<(i64, SensorData)> {
         ),
         (
             5_000_000,
-            SensorData::Odometry(Odometry {
+            SensorData::Odometry(Box::new(Odometry {
                 position: v3(1.5, -2.0, 0.75),
                 orientation: q,
                 velocity: Some(v3(0.25, 0.5, -0.125)),
@@ -809,7 +809,7 @@ fn samples() -> Vec<(i64, SensorData)> {
                 child_frame_id: "MAV_FRAME_BODY_FRD".into(),
                 reset_counter: Some(7),
                 quality: Some(-1),
-            }),
+            })),
         ),
         (
             6_000_000,

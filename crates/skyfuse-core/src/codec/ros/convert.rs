@@ -274,12 +274,12 @@ pub fn odometry(m: &msgs::Odometry, ros1: bool) -> Result<Decoded, DecodeError> 
     o.velocity = (!unmeasured(&linear)).then_some(linear);
     o.angular_velocity = (!unmeasured(&angular)).then_some(angular);
     o.child_frame_id = m.child_frame_id.clone();
-    Ok(decoded(&m.header, ros1, SensorData::Odometry(o)))
+    Ok(decoded(&m.header, ros1, SensorData::Odometry(Box::new(o))))
 }
 
 pub fn pose_stamped(m: &msgs::PoseStamped, ros1: bool) -> Result<Decoded, DecodeError> {
     let o = odometry_from_pose("PoseStamped.pose", &m.header, &m.pose)?;
-    Ok(decoded(&m.header, ros1, SensorData::Odometry(o)))
+    Ok(decoded(&m.header, ros1, SensorData::Odometry(Box::new(o))))
 }
 
 pub fn pose_with_covariance_stamped(
@@ -295,7 +295,7 @@ pub fn pose_with_covariance_stamped(
         "PoseWithCovarianceStamped.pose.covariance",
         &m.pose.covariance,
     )?;
-    Ok(decoded(&m.header, ros1, SensorData::Odometry(o)))
+    Ok(decoded(&m.header, ros1, SensorData::Odometry(Box::new(o))))
 }
 
 pub fn flow_tof(m: &msgs::FlowTof, ros1: bool) -> Result<Decoded, DecodeError> {

@@ -262,13 +262,13 @@ fn expected(ty: RosType, v: &Value) -> Option<Decoded> {
             o.twist_cov = cov6_or_none(&v["twist"]["covariance"]);
             o.velocity = Some(v3(&v["twist"]["twist"]["linear"]));
             o.angular_velocity = Some(v3(&v["twist"]["twist"]["angular"]));
-            SensorData::Odometry(o)
+            SensorData::Odometry(Box::new(o))
         }
-        RosType::PoseStamped => SensorData::Odometry(pose_odometry(&v["pose"], frame)),
+        RosType::PoseStamped => SensorData::Odometry(Box::new(pose_odometry(&v["pose"], frame))),
         RosType::PoseWithCovarianceStamped => {
             let mut o = pose_odometry(&v["pose"]["pose"], frame);
             o.pose_cov = cov6_or_none(&v["pose"]["covariance"]);
-            SensorData::Odometry(o)
+            SensorData::Odometry(Box::new(o))
         }
         RosType::FlowTof => SensorData::Flow(OpticalFlow {
             rate: Some(Vector2::new(f(&v["flow_vel_x"]), f(&v["flow_vel_y"]))),
@@ -733,15 +733,19 @@ fn sample_roundtrip_every_decodable_type_both_formats() {
         );
     }
     for v in [true, false] {
-        sample_roundtrip(RosType::Odometry, t, SensorData::Odometry(odo(v)));
+        sample_roundtrip(RosType::Odometry, t, SensorData::Odometry(Box::new(odo(v))));
     }
-    sample_roundtrip(RosType::PoseStamped, t, SensorData::Odometry(odo(false)));
+    sample_roundtrip(
+        RosType::PoseStamped,
+        t,
+        SensorData::Odometry(Box::new(odo(false))),
+    );
     let mut pwc = odo(false);
     pwc.pose_cov = Some(Matrix6::from_diagonal_element(0.5));
     sample_roundtrip(
         RosType::PoseWithCovarianceStamped,
         t,
-        SensorData::Odometry(pwc),
+        SensorData::Odometry(Box::new(pwc)),
     );
     for tof in [true, false] {
         sample_roundtrip(
@@ -768,8 +772,12 @@ fn sample_roundtrip_every_decodable_type_both_formats() {
 #[test]
 fn encode_sample_point_stamped_and_errors() {
     let t = 1_700_000_000_000_000;
-    let bytes =
-        encode_sample_cdr(RosType::PointStamped, t, &SensorData::Odometry(odo(false))).unwrap();
+    let bytes = encode_sample_cdr(
+        RosType::PointStamped,
+        t,
+        &SensorData::Odometry(Box::new(odo(false))),
+    )
+    .unwrap();
     let p = PointStamped::from_cdr(&bytes).unwrap();
     assert_eq!((p.point.x, p.point.y, p.point.z), (1.5, -2.25, 0.75));
     assert_eq!(p.header.frame_id, "camera_odom_frame");
@@ -778,10 +786,11 @@ fn encode_sample_point_stamped_and_errors() {
         (1_700_000_000, 0)
     );
     // Wrong sample kind for the type.
-    let e = encode_sample_cdr(RosType::Imu, t, &SensorData::Odometry(odo(false))).unwrap_err();
+    let e = encode_sample_cdr(RosType::Imu, t, &SensorData::Odometry(Box::new(odo(false))))
+        .unwrap_err();
     assert!(matches!(e, EncodeError::Unsupported(_)), "{e}");
     // Stamps the wire cannot hold.
-    let data = SensorData::Odometry(odo(false));
+    let data = SensorData::Odometry(Box::new(odo(false)));
     let e = encode_sample_cdr(
         RosType::Odometry,
         (i64::from(i32::MAX) + 1) * 1_000_000,
@@ -793,7 +802,8 @@ fn encode_sample_point_stamped_and_errors() {
     // Non-finite values name the field.
     let mut o = odo(true);
     o.position.y = f64::NAN;
-    let e = encode_sample_ros1(RosType::Odometry, t, &SensorData::Odometry(o)).unwrap_err();
+    let e =
+        encode_sample_ros1(RosType::Odometry, t, &SensorData::Odometry(Box::new(o))).unwrap_err();
     assert!(
         e.to_string().contains("Odometry.pose.pose.position.y"),
         "{e}"
@@ -815,7 +825,7 @@ fn encode_sample_point_stamped_and_errors() {
 fn ros1_stamps_after_2038_and_negative_ros2_stamps() {
     // ROS 1 time is unsigned: 2040 must come back as 2040, not 1904.
     let t = 2_208_988_800_000_001; // 2040-01-01T00:00:00.000001Z
-    let data = SensorData::Odometry(odo(false));
+    let data = SensorData::Odometry(Box::new(odo(false)));
     let b = encode_sample_ros1(RosType::PoseStamped, t, &data).unwrap();
     assert_eq!(
         decode_ros1(RosType::PoseStamped, &b).unwrap().stamp_us,

@@ -191,7 +191,7 @@ fn read_topics(
         topics.push(read_topic(f, &mut samples, &mut prog)?);
     }
     // Stable: equal stamps keep topic order (the TOPICS order, then instance).
-    samples.sort_by_key(|s| s.stamp_us);
+    crate::replay::sort_by_stamp(&mut samples);
     let has = |t: &str| files.iter().any(|f| TOPICS[f.order.0].0 == t);
     let mut stand_ins = Vec::new();
     attach_angular_velocity(&mut samples);
@@ -335,7 +335,7 @@ fn attitude_from_ekf2_heading(samples: &mut Vec<Sample>) -> usize {
         samples.retain(|s| s.source.as_ref() != "attitude_states");
     }
     samples.extend(extra);
-    samples.sort_by_key(|s| s.stamp_us);
+    crate::replay::sort_by_stamp(samples);
     n
 }
 
@@ -764,6 +764,7 @@ fn read_csv(
     }
     let mapper = Mapper::new(tf.kind, file, &header)?;
     let mut line = 1;
+    let mut ends = Vec::with_capacity(header.len());
     loop {
         buf.clear();
         let n = reader
@@ -781,12 +782,15 @@ fn read_csv(
                 if text.trim().is_empty() {
                     continue;
                 }
-                let fields: Vec<&str> = text.split(',').collect();
+                field_ends(text, &mut ends);
                 let row = Row {
                     file,
                     line,
                     header: &header,
-                    fields: Fields::Text(&fields),
+                    fields: Fields::Text {
+                        line: text,
+                        ends: &ends,
+                    },
                 };
                 row.check_len().and_then(|()| mapper.map(&row))
             }
@@ -810,17 +814,47 @@ struct Row<'a> {
 
 #[derive(Clone, Copy)]
 enum Fields<'a> {
-    Text(&'a [&'a str]),
+    /// A CSV line and where each of its fields ends (the comma after it, or the end).
+    Text {
+        line: &'a str,
+        ends: &'a [usize],
+    },
     Num(&'a [f64]),
 }
 
-impl Fields<'_> {
+impl<'a> Fields<'a> {
     fn len(&self) -> usize {
         match self {
-            Fields::Text(t) => t.len(),
+            Fields::Text { ends, .. } => ends.len(),
             Fields::Num(n) => n.len(),
         }
     }
+
+    /// Field `c` of a CSV line, trimmed.
+    fn text(&self, c: usize) -> Option<&'a str> {
+        let Fields::Text { line, ends } = *self else {
+            return None;
+        };
+        let end = *ends.get(c)?;
+        let start = match c {
+            0 => 0,
+            _ => ends[c - 1] + 1,
+        };
+        line.get(start..end).map(str::trim)
+    }
+}
+
+/// Where each field of a CSV line ends: one pass over its bytes, into a reused buffer
+/// (a line is split for every row of every topic).
+fn field_ends(line: &str, ends: &mut Vec<usize>) {
+    ends.clear();
+    ends.extend(
+        line.bytes()
+            .enumerate()
+            .filter(|&(_, b)| b == b',')
+            .map(|(i, _)| i),
+    );
+    ends.push(line.len());
 }
 
 impl Row<'_> {
@@ -840,7 +874,7 @@ impl Row<'_> {
 
     fn text(&self, c: usize) -> String {
         match self.fields {
-            Fields::Text(t) => t.get(c).map_or("", |s| s.trim()).to_string(),
+            Fields::Text { .. } => self.fields.text(c).unwrap_or("").to_string(),
             Fields::Num(n) => n.get(c).map_or(String::new(), |v| v.to_string()),
         }
     }
@@ -873,9 +907,10 @@ impl Row<'_> {
     /// A float; `nan`/`inf` parse (PX4's "unknown").
     fn f64(&self, c: usize) -> Result<f64, Px4LogError> {
         match self.fields {
-            Fields::Text(t) => t
-                .get(c)
-                .map_or("", |s| s.trim())
+            Fields::Text { .. } => self
+                .fields
+                .text(c)
+                .unwrap_or("")
                 .parse()
                 .map_err(|_| self.bad(c, "a number")),
             Fields::Num(n) => n.get(c).copied().ok_or_else(|| self.bad(c, "a number")),
@@ -899,7 +934,7 @@ impl Row<'_> {
         expected: &'static str,
     ) -> Result<i64, Px4LogError> {
         let v = match self.fields {
-            Fields::Text(t) => t.get(c).and_then(|s| s.trim().parse::<i64>().ok()),
+            Fields::Text { .. } => self.fields.text(c).and_then(|s| s.parse::<i64>().ok()),
             Fields::Num(n) => n
                 .get(c)
                 .filter(|v| v.fract() == 0.0 && v.abs() < 9.0e18)

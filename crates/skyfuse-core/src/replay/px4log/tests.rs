@@ -155,7 +155,7 @@ fn vio_velocity_matches_its_position_derivative() {
         .samples
         .iter()
         .filter_map(|s| match (&s.data, s.stamp_us) {
-            (SensorData::Odometry(o), Some(t)) => Some((t as f64 * 1e-6, o)),
+            (SensorData::Odometry(o), Some(t)) => Some((t as f64 * 1e-6, &**o)),
             _ => None,
         })
         .filter(|(t, _)| (215.0..300.0).contains(t))

@@ -558,7 +558,7 @@ fn vio(c: &VioCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
     };
     Ok((
         t,
-        SensorData::Odometry(Odometry {
+        SensorData::Odometry(Box::new(Odometry {
             position: frames::ned_to_enu(pos),
             orientation: q,
             velocity,
@@ -569,7 +569,7 @@ fn vio(c: &VioCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
             child_frame_id: "px4_vio_body".to_string(),
             reset_counter: Some(r.u8(c.reset_counter)?),
             quality,
-        }),
+        })),
     ))
 }
 
