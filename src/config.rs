@@ -951,6 +951,18 @@ mod tests {
     }
 
     #[test]
+    fn output_rates_must_be_positive_and_finite() {
+        for (key, value) in [("pose_rate_hz", "0.0"), ("debug_rate_hz", "nan")] {
+            let err = Config::from_toml_str(&format!("[output]\n{key} = {value}\n"), "t")
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(&format!("output.{key}")), "{err}");
+        }
+        let ok = Config::from_toml_str("[output]\ndebug_rate_hz = 10.0\n", "t").unwrap();
+        assert_eq!(ok.output.debug_rate_hz, 10.0);
+    }
+
+    #[test]
     fn bad_key_expression_and_duplicate_ids_are_rejected() {
         let base = "[[inputs]]\nid=\"a\"\nkind=\"imu\"\nformat=\"json\"\nrate_hz=1\n";
         let err = Config::from_toml_str(&format!("{base}key=\"a/**b\"\n"), "t")

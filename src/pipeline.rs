@@ -596,6 +596,17 @@ mod tests {
         (Arc::new(Inlet::new(p, capacity)), shared)
     }
 
+    /// Runs `f` on another thread, to its end, while this thread holds the pipeline.
+    fn while_held(inlet: &Arc<Inlet>, f: impl FnOnce(&Inlet) + Send + 'static) {
+        let other = inlet.clone();
+        inlet.with(|_| {
+            let handle = std::thread::spawn(move || f(&other));
+            if let Err(panic) = handle.join() {
+                std::panic::resume_unwind(panic);
+            }
+        });
+    }
+
     #[test]
     fn a_sample_is_fused_on_the_thread_that_brings_it() {
         let (inlet, shared) = inlet(8);
@@ -609,16 +620,12 @@ mod tests {
         // The task holds the pipeline; samples pushed meanwhile from another thread
         // return at once (queued), and are fused before the holder lets go.
         let (inlet, shared) = inlet(8);
-        let other = inlet.clone();
-        inlet.with(|_| {
-            std::thread::spawn(move || {
-                for i in 0..3 {
-                    other.push(imu(1_000_000 + i * 5_000)).unwrap();
-                }
-            })
-            .join()
-            .unwrap();
-            assert_eq!(shared.consumed.load(Relaxed), 0, "fused while held");
+        let consumed = shared.clone();
+        while_held(&inlet, move |other| {
+            for i in 0..3 {
+                other.push(imu(1_000_000 + i * 5_000)).unwrap();
+            }
+            assert_eq!(consumed.consumed.load(Relaxed), 0, "fused while held");
         });
         assert_eq!(shared.consumed.load(Relaxed), 3);
         assert_eq!(inlet.queue_len(), 0);
@@ -647,14 +654,9 @@ mod tests {
     #[test]
     fn a_full_queue_or_a_closed_estimator_refuses() {
         let (inlet, shared) = inlet(1);
-        let other = inlet.clone();
-        inlet.with(|_| {
-            std::thread::spawn(move || {
-                assert_eq!(other.push(imu(1_000_000)), Ok(()));
-                assert_eq!(other.push(imu(1_005_000)), Err(InletError::Full));
-            })
-            .join()
-            .unwrap();
+        while_held(&inlet, |other| {
+            assert_eq!(other.push(imu(1_000_000)), Ok(()));
+            assert_eq!(other.push(imu(1_005_000)), Err(InletError::Full));
         });
         assert_eq!(shared.consumed.load(Relaxed), 1);
         assert!(inlet.close().is_some());
