@@ -12,7 +12,7 @@ use crate::estimator::{
 use crate::fusion::{Fusion, InputList};
 use crate::health::{HealthConfig, HealthState, Reason};
 use crate::hub::Hub;
-use crate::ingest::Ingest;
+use crate::ingest::{Ingest, InputStatus};
 use crate::protocol::{FlowPlot, ServerFrame, Tick, TickPose};
 use crate::sample::{Micros, Sample};
 use serde_json::Value;
@@ -190,12 +190,15 @@ pub struct PipelineOutputs {
 }
 
 /// At most one item per period of sample time, on a fixed grid: however the samples
-/// jitter, the rate never exceeds the limit for long, and never falls to half of it
-/// (as "a period since the last one" would, with samples just short of the period).
+/// jitter, the rate never exceeds the limit for long, and does not fall short of it
+/// either (as "a period since the last one" would, with samples just short of the
+/// period). An item up to a quarter period early takes its slot, so a source at the
+/// limit's own rate loses nothing to jitter.
 #[derive(Debug, Clone)]
 pub struct RateLimit {
     period_us: i64,
-    next_us: Option<i64>,
+    /// The last item's time and the next slot on the grid.
+    slot: Option<(i64, i64)>,
 }
 
 impl RateLimit {
@@ -203,21 +206,21 @@ impl RateLimit {
     pub fn hz(rate_hz: f64) -> Self {
         Self {
             period_us: ((1e6 / rate_hz).round() as i64).max(1),
-            next_us: None,
+            slot: None,
         }
     }
 
     /// Whether an item at sample time `t` goes out (and is counted as gone).
     pub fn due(&mut self, t: i64) -> bool {
         let p = self.period_us;
-        let next = match self.next_us {
-            Some(n) if t < n && t >= n - p => return false,
+        let next = match self.slot {
+            Some((last, next)) if t >= last && t < next - p / 4 => return false,
             // On the grid.
-            Some(n) if t >= n && t - n < p => n + p,
+            Some((last, next)) if t >= last && t - next < p => next + p,
             // The first, a gap of a period or more, or time went back: a new grid.
             _ => t + p,
         };
-        self.next_us = Some(next);
+        self.slot = Some((t, next));
         true
     }
 }
@@ -290,8 +293,8 @@ impl Pipeline {
 
     /// The periodic health check (with or without samples), ingest's rejections and
     /// clock restarts counted against the sensors, and the status snapshot refreshed.
-    fn health_tick(&mut self, ingest: &Ingest, now: i64) {
-        for st in ingest.statuses(now) {
+    fn health_tick(&mut self, inputs: &[InputStatus], now: i64) {
+        for st in inputs {
             let seen = self.rejected_seen.entry(st.id.clone()).or_insert(0);
             if st.rejected > *seen {
                 *seen = st.rejected;
@@ -460,7 +463,9 @@ pub async fn run(
         tokio::select! {
             _ = health_timer.tick() => {
                 let now = crate::clock::now_us();
-                inlet.with(|p| p.health_tick(&ingest, now));
+                // Read before taking the estimator: its holder keeps samples waiting.
+                let inputs = ingest.statuses(now);
+                inlet.with(|p| p.health_tick(&inputs, now));
             }
             Some((cmd, reply)) = commands.recv() => {
                 let events = inlet.with(|p| p.command(cmd)).unwrap_or_default();
@@ -540,9 +545,21 @@ mod tests {
             }
         }
         assert!((499..=501).contains(&sent.len()), "{} sent", sent.len());
-        // Never two closer than the samples allow around one period.
+        // Never two much closer than a period.
         let closest = sent.windows(2).map(|w| w[1] - w[0]).min().unwrap_or(0);
         assert!(closest >= 14_000, "{closest} µs apart");
+        // Two interleaved 200 Hz sources (a pose with each IMU and each T265 sample).
+        let mut limit = RateLimit::hz(50.0);
+        let kept = (0..4000_i64)
+            .filter(|i| limit.due(1_000_000 + (i / 2) * 5_000 + (i % 2) * 1_700))
+            .count();
+        assert!((499..=501).contains(&kept), "{kept} kept");
+        // A source at the limit's own rate, jittered, loses nothing.
+        let mut limit = RateLimit::hz(50.0);
+        let kept = (0..500_i64)
+            .filter(|i| limit.due(1_000_000 + i * 20_000 + [0, 400, -400, 900][(i % 4) as usize]))
+            .count();
+        assert_eq!(kept, 500);
     }
 
     #[test]

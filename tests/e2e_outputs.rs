@@ -143,6 +143,28 @@ fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
     assert_eq!(z["errors"].as_array().map(Vec::len), Some(0), "{z}");
     // ENU JSON and NED VPE describe the same vehicle: up is positive here.
     assert!(f(&z["last_json"]["position"][2]) > 1.5, "{z}");
+    // The pose comes at [output] pose_rate_hz (50) on its own clock, from 200 Hz of IMU
+    // (a limit of "a period since the last one" would give ~40 Hz with jittered
+    // samples); the debug series at most at debug_rate_hz (50): the T265's from 200 Hz,
+    // the flow's from its own 50 Hz without losing any to jitter.
+    let pose_rate = f(&z["json_rate_hz"]);
+    assert!(
+        (46.0..=50.5).contains(&pose_rate),
+        "pose at {pose_rate:.1} Hz: {z}"
+    );
+    let debug = z["debug_rate_hz"].as_object().expect("debug rates");
+    for series in ["oriUAV_t265", "OF_sum"] {
+        assert!(debug.contains_key(series), "no {series}: {z}");
+    }
+    for (series, r) in debug {
+        // null: one message in the window, no rate to speak of.
+        assert!(
+            r.as_f64().is_none_or(|r| r <= 50.5),
+            "{series} at {r} Hz: {z}"
+        );
+    }
+    assert!(f(&debug["oriUAV_t265"]) > 47.0, "{z}");
+    assert!(f(&debug["OF_sum"]) > 47.0, "{z}");
 }
 
 #[test]
