@@ -91,7 +91,7 @@ pub struct SensorVerdict {
 }
 
 pub type PoseSender = watch::Sender<Option<Arc<FusedPose>>>;
-/// Called with every new pose, in the estimator's task, before it is shared (the
+/// Called with every new pose, on the thread that fused it, before it is shared (the
 /// MAVLink output sends its VPE from here).
 pub type PoseHook = Box<dyn FnMut(&FusedPose) + Send>;
 pub type PoseReceiver = watch::Receiver<Option<Arc<FusedPose>>>;
@@ -383,13 +383,11 @@ impl Inlet {
         self.fuse_queued_if_free()
     }
 
-    /// Run `f` on the pipeline, waiting while another thread fuses; then fuse what was
-    /// queued meanwhile. `None` once closed.
+    /// Run `f` on the pipeline, waiting while another thread fuses; then what was queued
+    /// meanwhile is fused (here, or by a thread that took the pipeline first). `None`
+    /// once closed.
     pub fn with<R>(&self, f: impl FnOnce(&mut Pipeline) -> R) -> Option<R> {
-        let mut held = crate::sync::lock(&self.pipeline);
-        let r = held.as_mut().map(f);
-        self.fuse_queued(&mut held);
-        drop(held);
+        let r = crate::sync::lock(&self.pipeline).as_mut().map(f);
         // Ignored: closed is closed for the samples pushed meanwhile as well.
         let _ = self.fuse_queued_if_free();
         r

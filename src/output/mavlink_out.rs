@@ -2,8 +2,8 @@
 //! ODOMETRY) at a fixed rate from the latest fused pose, HEARTBEAT at 1 Hz, to every
 //! configured endpoint and/or through mavlink-server on Zenoh.
 //!
-//! The estimator's task hands each new pose to [`VpeSender::on_pose`], which sends the
-//! VPE at once when one is due (no hop to another task). Each endpoint has its own task
+//! The thread that fuses a sample hands each new pose to [`VpeSender::on_pose`], which
+//! sends the VPE at once when one is due (no hop to another thread). Each endpoint has its own task
 //! and a small bounded queue (`udpout` frames leave with a non-blocking send): a link
 //! that is down or slow loses its own frames (counted) and reconnects with back-off; it
 //! never delays the others, and nothing here waits, so nothing can block the estimator.
@@ -415,8 +415,8 @@ type ZenohFrame = (MavHeader, mavlink::dialects::common::MavMessage, Arc<[u8]>);
 const ZENOH_QUEUE: usize = 64;
 
 /// What decides and encodes the frames: the VPE schedule, heartbeats, the EKF origin.
-/// Synchronous, so the estimator's task sends a VPE the moment it makes the pose (no
-/// hop to another task); the output task calls it on a timer for heartbeats and to
+/// Synchronous, so the thread that fuses sends a VPE the moment it makes the pose (no
+/// hop to another thread); the output task calls it on a timer for heartbeats and to
 /// report a stale estimate when no pose comes.
 pub struct VpeSender {
     cfg: MavlinkConfig,
@@ -438,7 +438,7 @@ pub struct VpeSender {
     zenoh_stats: Vec<Arc<LinkStats>>,
 }
 
-/// The sender, shared by the estimator's task (new poses) and the output task (timer).
+/// The sender, shared by the fusing thread (new poses) and the output task (timer).
 pub type VpeHandle = Arc<Mutex<VpeSender>>;
 
 /// Set the output up: the links' tasks start here. Returns the sender and, with a Zenoh
@@ -629,8 +629,8 @@ impl VpeSender {
     }
 }
 
-/// The output's task: heartbeats and staleness on a timer (the estimator's task sends
-/// the VPEs through [`VpeSender::on_pose`]), and the frames routed through Zenoh.
+/// The output's task: heartbeats and staleness on a timer (the fusing thread sends the
+/// VPEs through [`VpeSender::on_pose`]), and the frames routed through Zenoh.
 pub async fn run(
     sender: VpeHandle,
     pose: PoseReceiver,

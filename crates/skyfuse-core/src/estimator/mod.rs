@@ -236,6 +236,13 @@ impl Estimator {
         self.observed_t.max(self.newest_t)
     }
 
+    /// Why the estimate is not valid now (`None`: valid).
+    fn invalid_reason(&self) -> Option<String> {
+        self.core
+            .validity(&self.cfg, self.judged_at())
+            .map(|why| self.invalid_texts.get(why))
+    }
+
     /// How far behind the newest sample the filter fuses, µs.
     pub fn horizon_us(&self) -> i64 {
         let max = MAX_HORIZON_US.min((self.cfg.history_ms * 500.0) as i64);
@@ -459,9 +466,7 @@ impl Estimator {
             angular_velocity = now.rate.or(angular_velocity);
             (present, now.p, now.v, e.cov3(IDX_P), e.cov3(IDX_V))
         };
-        let mut invalid_reason = c
-            .validity(&self.cfg, self.judged_at())
-            .map(|why| self.invalid_texts.get(why));
+        let mut invalid_reason = self.invalid_reason();
         let finite = position
             .iter()
             .chain(velocity.iter())
@@ -591,9 +596,7 @@ impl Estimator {
 
     pub fn state_summary(&self) -> EstimatorStatus {
         let c = &self.core;
-        let invalid_reason = c
-            .validity(&self.cfg, self.judged_at())
-            .map(|why| self.invalid_texts.get(why));
+        let invalid_reason = self.invalid_reason();
         let mut sources = c.stats.clone();
         for (s, st) in sources.iter_mut() {
             st.usable = self.usable.get(s).is_none_or(|u| u.0);

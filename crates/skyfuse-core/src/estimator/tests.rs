@@ -680,6 +680,22 @@ fn seen(roll: f64, range: f64, vel: Vector2<f64>) -> Seen {
     }
 }
 
+/// `data` from `source`, stamped and arriving at `t`.
+fn sample_at(source: &str, t: i64, data: SensorData) -> Sample {
+    Sample {
+        source: Arc::from(source),
+        stamp_us: Some(t),
+        arrival_us: t,
+        data,
+    }
+}
+
+/// The autopilot says: disarmed, landed.
+const DISARMED_ON_GROUND: VehicleState = VehicleState {
+    armed: Some(false),
+    landed: Some(LandedState::OnGround),
+};
+
 /// A flow + range + attitude vehicle (no IMU) at 50 Hz, sensing `at(t)`; `state` the
 /// autopilot's word (5 Hz).
 fn flow_range_vehicle(
@@ -698,12 +714,7 @@ fn flow_range_vehicle(
             vel: v,
             flow_quality,
         } = at(t);
-        let sample = |source: &str, data: SensorData| Sample {
-            source: Arc::from(source),
-            stamp_us: Some(t),
-            arrival_us: t,
-            data,
-        };
+        let sample = |source: &str, data: SensorData| sample_at(source, t, data);
         let q = UnitQuaternion::from_euler_angles(roll, 0.0, 0.0);
         let mut batch = vec![
             sample(
@@ -748,6 +759,14 @@ fn flow_range_vehicle(
         t += 20_000;
     }
     events
+}
+
+/// An IMU at rest, level: no rotation, gravity's specific force.
+fn still_imu() -> SensorData {
+    SensorData::Imu(Imu::from_rates(
+        Some(Vector3::zeros()),
+        Some(Vector3::new(0.0, 0.0, GRAVITY)),
+    ))
 }
 
 fn flow_range_cfg() -> EstimatorConfig {
@@ -832,10 +851,6 @@ fn a_vehicle_carried_while_disarmed_is_not_held_on_the_ground() {
     // velocity, held position): the track keeps its velocity through the gap. The
     // estimate is invalid while carried, valid once set down.
     let mut est = Estimator::new(flow_range_cfg());
-    let state = VehicleState {
-        armed: Some(false),
-        landed: Some(LandedState::OnGround),
-    };
     let carried = |t: i64| (5_000_000..10_000_000).contains(&t);
     let poor_flow = |t: i64| (6_500_000..9_500_000).contains(&t);
     let mut valid_while_carried = Vec::new();
@@ -856,7 +871,7 @@ fn a_vehicle_carried_while_disarmed_is_not_held_on_the_ground() {
                 }
                 s
             },
-            Some(state),
+            Some(DISARMED_ON_GROUND),
         );
         if carried(end) && end > 6_000_000 {
             valid_while_carried.push(est.pose().is_some_and(|p| p.valid));
@@ -883,34 +898,13 @@ fn an_imu_that_has_just_started_is_not_a_carry() {
     // (ArduCopter SITL at start-up). Still, but not yet for the rest time, is not
     // "moving": the estimate is valid from the first pose on, with no `handled` event.
     let mut est = Estimator::new(flow_range_cfg());
-    let state = VehicleState {
-        armed: Some(false),
-        landed: Some(LandedState::OnGround),
-    };
-    let sample = |source: &str, t: i64, data: SensorData| Sample {
-        source: Arc::from(source),
-        stamp_us: Some(t),
-        arrival_us: t,
-        data,
-    };
     let mut events = Vec::new();
     let mut valid = Vec::new();
     for k in 0..600i64 {
         let t = 1_000_000 + k * 5_000;
-        let mut batch = vec![sample(
-            "imu",
-            t,
-            SensorData::Imu(Imu {
-                gyro: Some(Vector3::zeros()),
-                accel: Some(Vector3::new(0.0, 0.0, GRAVITY)),
-                orientation: None,
-                gyro_cov: None,
-                accel_cov: None,
-                orientation_cov: None,
-            }),
-        )];
+        let mut batch = vec![sample_at("imu", t, still_imu())];
         if k % 4 == 0 {
-            batch.push(sample(
+            batch.push(sample_at(
                 "range",
                 t,
                 SensorData::Range(Range {
@@ -922,7 +916,7 @@ fn an_imu_that_has_just_started_is_not_a_carry() {
                     orientation: Some(25),
                 }),
             ));
-            batch.push(sample(
+            batch.push(sample_at(
                 "attitude",
                 t,
                 SensorData::Attitude(Attitude {
@@ -932,7 +926,11 @@ fn an_imu_that_has_just_started_is_not_a_carry() {
             ));
         }
         if k % 40 == 0 {
-            batch.push(sample("state", t, SensorData::VehicleState(state)));
+            batch.push(sample_at(
+                "state",
+                t,
+                SensorData::VehicleState(DISARMED_ON_GROUND),
+            ));
         }
         for s in &batch {
             events.extend(est.process(s));
@@ -967,14 +965,7 @@ fn a_re_run_fuses_at_least_as_far_as_before() {
         source: Arc::from("imu"),
         stamp_us: None,
         arrival_us: t,
-        data: SensorData::Imu(Imu {
-            gyro: Some(Vector3::zeros()),
-            accel: Some(Vector3::new(0.0, 0.0, GRAVITY)),
-            orientation: None,
-            gyro_cov: None,
-            accel_cov: None,
-            orientation_cov: None,
-        }),
+        data: still_imu(),
     };
     let mut t = 1_000_000;
     while t <= 2_000_000 {
