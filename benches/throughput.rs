@@ -13,7 +13,7 @@ use skyfuse::estimator::EstimatorConfig;
 use skyfuse::fusion::Fusion;
 use skyfuse::health::HealthConfig;
 use skyfuse::sample::{Decoded, Sample, SensorData, SensorKind};
-use skyfuse::sim::sensors::DEMO_STREAMS;
+use skyfuse::sim::sensors::{StreamSpec, DEMO_STREAMS};
 use skyfuse::sim::Simulator;
 use std::collections::BTreeMap;
 use std::hint::black_box;
@@ -156,9 +156,13 @@ fn inputs_of(streams: &[skyfuse::sim::sensors::StreamSpec]) -> skyfuse::fusion::
 }
 
 fn sim_samples(duration_s: f64) -> Vec<Sample> {
-    Simulator::new(DEMO_STREAMS, 1, duration_s)
+    sim_samples_of(DEMO_STREAMS, duration_s)
+}
+
+fn sim_samples_of(streams: &[StreamSpec], duration_s: f64) -> Vec<Sample> {
+    Simulator::new(streams, 1, duration_s)
         .map(|e| Sample {
-            source: DEMO_STREAMS[e.stream].input_id.into(),
+            source: streams[e.stream].input_id.into(),
             stamp_us: Some((e.measured_t * 1e6) as i64),
             arrival_us: (e.publish_t * 1e6) as i64,
             data: e.data,
@@ -188,13 +192,20 @@ fn fusion_order(samples: &[Sample], cfg: &EstimatorConfig) -> Vec<Sample> {
 
 /// µs per sample by kind, median over `REPS` runs; and samples/s of the whole run.
 fn cost_per_kind(samples: &[Sample]) -> (BTreeMap<&'static str, Vec<f64>>, Vec<f64>) {
+    cost_per_kind_of(DEMO_STREAMS, samples)
+}
+
+fn cost_per_kind_of(
+    streams: &[StreamSpec],
+    samples: &[Sample],
+) -> (BTreeMap<&'static str, Vec<f64>>, Vec<f64>) {
     let mut per_kind: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
     let mut totals = Vec::new();
     for _ in 0..REPS {
         let mut f = Fusion::new(
             EstimatorConfig::default(),
             HealthConfig::default(),
-            &inputs_of(DEMO_STREAMS),
+            &inputs_of(streams),
         );
         let mut sums: BTreeMap<&'static str, (f64, usize)> = BTreeMap::new();
         let t0 = Instant::now();
@@ -246,6 +257,40 @@ fn estimator_bench() {
     let (m, lo, hi) = median(totals);
     println!(
         "\nWhole simulated flight as published: {} samples, {m:.0} samples/s ({lo:.0}–{hi:.0}), {:.0}× real time.\n",
+        samples.len(),
+        m / (samples.len() as f64 / 140.0)
+    );
+}
+
+/// The demo flight with its IMU at 1 kHz (a flight controller's full rate): the IMU is
+/// then three quarters of the samples, so this prices what a high-rate log costs.
+fn imu_1khz_bench() {
+    let streams: Vec<StreamSpec> = DEMO_STREAMS
+        .iter()
+        .map(|s| match s.kind {
+            SensorKind::Imu => StreamSpec {
+                rate_hz: 1000.0,
+                ..*s
+            },
+            _ => *s,
+        })
+        .collect();
+    let samples = sim_samples_of(&streams, 140.0);
+    let (fusing, _) = cost_per_kind_of(
+        &streams,
+        &fusion_order(&samples, &EstimatorConfig::default()),
+    );
+    let (_, totals) = cost_per_kind_of(&streams, &samples);
+    println!("## The demo flight with a 1 kHz IMU (µs per sample, fusing it; median of {REPS})\n");
+    println!("| sample kind | fusing it | spread |");
+    println!("|---|---|---|");
+    for (k, v) in fusing {
+        let (m, lo, hi) = median(v);
+        println!("| {k} | {m:.2} | {lo:.2}–{hi:.2} |");
+    }
+    let (m, lo, hi) = median(totals);
+    println!(
+        "\nAs published: {} samples, {m:.0} samples/s ({lo:.0}–{hi:.0}), {:.0}× real time.\n",
         samples.len(),
         m / (samples.len() as f64 / 140.0)
     );
@@ -400,10 +445,11 @@ fn main() {
     }
     // `cargo bench --bench throughput -- ingest` runs one section.
     let only = std::env::args().skip(1).find(|a| !a.starts_with('-'));
-    let sections: [(&str, fn()); 4] = [
+    let sections: [(&str, fn()); 5] = [
         ("decode", decode_bench),
         ("ingest", ingest_bench),
         ("estimator", estimator_bench),
+        ("imu1k", imu_1khz_bench),
         ("replay", replay_bench),
     ];
     for (name, run) in sections {

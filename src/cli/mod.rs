@@ -110,6 +110,13 @@ pub enum Command {
         /// Offline: fusion mode (wrls, ekf, wrls+ekf, or all); default from the config.
         #[arg(long)]
         fusion: Option<String>,
+        /// Offline: write the scenario's sensor samples as a PX4 ULog file (the topics
+        /// `skyfuse replay` reads) instead of publishing; `--duration` sets its length.
+        #[arg(long, value_name = "FILE", conflicts_with = "out")]
+        ulog: Option<PathBuf>,
+        /// The simulated IMU's rate, Hz (default: the scenario's, 200 Hz).
+        #[arg(long, value_name = "HZ")]
+        imu_hz: Option<f64>,
         /// List the scenarios and exit.
         #[arg(long)]
         list: bool,
@@ -431,16 +438,33 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             Ok(())
         }
         Command::Sim {
+            seed,
+            duration,
+            scenario,
+            ulog: Some(file),
+            imu_hz,
+            ..
+        } => sim_ulog(&scenario, seed, duration, imu_hz, &file),
+        Command::Sim {
             config,
             seed,
             duration,
             scenario,
             out: Some(out),
             fusion,
+            imu_hz,
             ..
         } => {
             let c = Config::load(config.as_deref(), env_vars()).map_err(|e| e.to_string())?;
-            offline_sims(&c, &scenario, fusion.as_deref(), seed, duration, &out)
+            offline_sims(
+                &c,
+                &scenario,
+                fusion.as_deref(),
+                seed,
+                duration,
+                imu_hz,
+                &out,
+            )
         }
         Command::Replay {
             path,
@@ -694,7 +718,7 @@ fn random_token() -> String {
 }
 
 mod runs;
-use runs::{offline_sims, parse_window, replay};
+use runs::{offline_sims, parse_window, replay, sim_ulog};
 
 #[cfg(test)]
 mod tests {

@@ -77,6 +77,47 @@ pub(super) fn fmt_rmse(v: Option<f64>) -> String {
 /// One row of the scenario table: name, each source's APE RMSE, fused per mode.
 type ScenarioRow = (String, Vec<(String, Option<f64>)>, Vec<Option<f64>>);
 
+/// `--imu-hz`: a rate the simulator can run (1 Hz to 10 kHz).
+fn checked_imu_hz(hz: f64) -> Result<f64, String> {
+    if hz.is_finite() && (1.0..=10_000.0).contains(&hz) {
+        Ok(hz)
+    } else {
+        Err(format!("--imu-hz {hz}: must be between 1 and 10000 Hz"))
+    }
+}
+
+/// `skyfuse sim --ulog FILE`: one scenario's sensor samples as a PX4 ULog.
+pub(super) fn sim_ulog(
+    scenario_name: &str,
+    seed: u64,
+    duration: Option<f64>,
+    imu_hz: Option<f64>,
+    file: &std::path::Path,
+) -> Result<(), String> {
+    let mut scn = scenario::scenario(scenario_name)
+        .ok_or_else(|| format!("unknown scenario {scenario_name:?} (see --list)"))?;
+    if let Some(hz) = imu_hz.map(checked_imu_hz).transpose()? {
+        scn.streams = crate::sim::ulog::with_imu_rate(&scn.streams, hz);
+    }
+    let duration = duration.unwrap_or(scenario::DEFAULT_DURATION_S);
+    let sensors = scn.streams.iter().map(|s| s.input_id.to_string()).collect();
+    let faults = std::sync::Arc::new(FaultSchedule::new(sensors, scn.faults.clone()));
+    let sim = Simulator::with_profile(&scn.streams, seed, duration, scn.profile, faults);
+    let out = std::fs::File::create(file)
+        .map_err(|e| format!("cannot create {}: {e}", file.display()))?;
+    let mut bar = Progress::new("writing  ");
+    let events = sim.inspect(|e| bar.update(e.measured_t / duration));
+    let summary = crate::sim::ulog::write_flight(events, std::io::BufWriter::new(out))
+        .map_err(|e| format!("writing {}: {e}", file.display()))?;
+    println!(
+        "wrote {} ({} messages, {:.1} MB, {duration} s of scenario {scenario_name})",
+        file.display(),
+        summary.messages,
+        summary.bytes as f64 / 1e6
+    );
+    Ok(())
+}
+
 /// `skyfuse sim --out`: one or all scenarios, one or all fusion modes.
 pub(super) fn offline_sims(
     c: &Config,
@@ -84,8 +125,10 @@ pub(super) fn offline_sims(
     fusion: Option<&str>,
     seed: u64,
     duration: Option<f64>,
+    imu_hz: Option<f64>,
     out: &std::path::Path,
 ) -> Result<(), String> {
+    let imu_hz = imu_hz.map(checked_imu_hz).transpose()?;
     let names: Vec<&str> = if scenario_name == "all" {
         scenario::NAMES.iter().map(|(n, _)| *n).collect()
     } else {
@@ -100,8 +143,11 @@ pub(super) fn offline_sims(
     // scenario -> (source scores from the first mode, fused score per mode)
     let mut table: Vec<ScenarioRow> = Vec::new();
     for name in &names {
-        let scn = scenario::scenario(name)
+        let mut scn = scenario::scenario(name)
             .ok_or_else(|| format!("unknown scenario {name:?} (see --list)"))?;
+        if let Some(hz) = imu_hz {
+            scn.streams = crate::sim::ulog::with_imu_rate(&scn.streams, hz);
+        }
         let mut sources = Vec::new();
         let mut fused = Vec::new();
         for m in &modes {

@@ -176,13 +176,17 @@ impl Recorder {
                 );
             }
         }
-        let Some(pose) = est.pose() else { return };
+        // The pose's time first: most samples come within the output interval.
+        let Some(time_us) = est.pose_time() else {
+            return;
+        };
         if self
             .last_fused_us
-            .is_some_and(|l| pose.time_us < l + FUSED_OUTPUT_INTERVAL_US)
+            .is_some_and(|l| time_us < l + FUSED_OUTPUT_INTERVAL_US)
         {
             return;
         }
+        let Some(pose) = est.pose() else { return };
         self.last_fused_us = Some(pose.time_us);
         let t = self.secs(pose.time_us);
         push(&mut self.fused_all, t, pose.position, pose.orientation);

@@ -160,12 +160,8 @@ impl Ekf {
             v_ba: -rot * dt,
             phi,
         };
-        for j in 0..n {
-            f.apply(&mut self.p, Line::Column(j));
-        }
-        for i in 0..n {
-            f.apply(&mut self.p, Line::Row(i));
-        }
+        f.apply_to_columns(self.p.as_mut_slice(), n);
+        f.apply_to_rows(self.p.as_mut_slice(), n);
         // Process noise: white specific force over the step, bias and drift random walks.
         let next = &mut self.p;
         let q = accel_var;
@@ -186,7 +182,10 @@ impl Ekf {
                 next[(idx + i, idx + i)] += rw * rw * dt;
             }
         }
-        self.symmetrise();
+        // Only the entries between two changed states can have lost their symmetry: an
+        // entry between a changed and an unchanged state got the same arithmetic on the
+        // same operands in both passes, and the noise is added symmetrically.
+        self.symmetrise_among(&Transition::CHANGED);
     }
 
     /// Measurement update with innovation `y = z - h(x)`, Jacobian `h` (m×n) and noise
@@ -200,7 +199,8 @@ impl Ekf {
         gate: f64,
         force: bool,
     ) -> UpdateOutcome {
-        let s = self.innovation_cov(h, r);
+        let pht = p_ht(&self.p, h);
+        let s = Self::innovation_cov_of(h, &pht, r);
         let innovation: Vec<f64> = y.iter().copied().collect();
         let innovation_var: Vec<f64> = s.diagonal().iter().copied().collect();
         let Some(chol) = s.clone().cholesky() else {
@@ -218,7 +218,7 @@ impl Ekf {
         let accepted = nis.is_finite() && (force || test_ratio <= 1.0);
         if accepted {
             // K = P Hᵀ S⁻¹, computed as (S⁻¹ H P)ᵀ (S and P symmetric).
-            let hp = h * &self.p;
+            let hp = pht.transpose();
             let k = chol.solve(&hp).transpose();
             self.x += &k * y;
             // P ← P − K H P: with the optimal gain this is the Joseph form
@@ -239,14 +239,33 @@ impl Ekf {
     /// Make P exactly symmetric and keep its diagonal above a tiny floor.
     pub fn symmetrise(&mut self) {
         let n = self.n();
-        for i in 0..n {
-            for j in (i + 1)..n {
-                let m = 0.5 * (self.p[(i, j)] + self.p[(j, i)]);
-                self.p[(i, j)] = m;
-                self.p[(j, i)] = m;
+        let p = self.p.as_mut_slice();
+        for j in 0..n {
+            for i in (j + 1)..n {
+                let m = 0.5 * (p[i + j * n] + p[j + i * n]);
+                p[i + j * n] = m;
+                p[j + i * n] = m;
             }
-            if self.p[(i, i)] < VAR_FLOOR {
-                self.p[(i, i)] = VAR_FLOOR;
+            if p[j + j * n] < VAR_FLOOR {
+                p[j + j * n] = VAR_FLOOR;
+            }
+        }
+    }
+
+    /// [`Self::symmetrise`] where only the entries among `states` can be asymmetric.
+    fn symmetrise_among(&mut self, states: &[usize]) {
+        let n = self.n();
+        let p = self.p.as_mut_slice();
+        for (a, &j) in states.iter().enumerate() {
+            for &i in &states[a + 1..] {
+                let m = 0.5 * (p[i + j * n] + p[j + i * n]);
+                p[i + j * n] = m;
+                p[j + i * n] = m;
+            }
+        }
+        for j in 0..n {
+            if p[j + j * n] < VAR_FLOOR {
+                p[j + j * n] = VAR_FLOOR;
             }
         }
     }
@@ -340,7 +359,12 @@ impl Ekf {
 
     /// Innovation covariance S = H P Hᵀ + R, made exactly symmetric.
     fn innovation_cov(&self, h: &DMatrix<f64>, r: &DMatrix<f64>) -> DMatrix<f64> {
-        let s = h * &self.p * h.transpose() + r;
+        Self::innovation_cov_of(h, &p_ht(&self.p, h), r)
+    }
+
+    /// S = H (P Hᵀ) + R, made exactly symmetric.
+    fn innovation_cov_of(h: &DMatrix<f64>, pht: &DMatrix<f64>, r: &DMatrix<f64>) -> DMatrix<f64> {
+        let s = h_times(h, pht) + r;
         (&s + s.transpose()) * 0.5
     }
 
@@ -386,7 +410,6 @@ impl Ekf {
     }
 }
 
-/// Jacobian row block selecting the position (3×n).
 /// The state transition of one IMU step, by its non-identity parts: p += v·dt +
 /// p_ba·b_a, v += v_ba·b_a, b_g *= phi.
 struct Transition {
@@ -396,21 +419,24 @@ struct Transition {
     phi: f64,
 }
 
-/// One column or one row of a matrix.
-#[derive(Clone, Copy)]
-enum Line {
-    Column(usize),
-    Row(usize),
-}
-
 impl Transition {
-    /// Applies F to one column of `m` (F·m, column by column), or to one row (m·Fᵀ, row
-    /// by row: the same operation on the transpose).
-    fn apply(&self, m: &mut DMatrix<f64>, line: Line) {
-        let at = |k: usize| match line {
-            Line::Column(j) => (k, j),
-            Line::Row(i) => (i, k),
-        };
+    /// The states whose rows (and columns) F changes: p, v and b_g.
+    const CHANGED: [usize; 9] = [
+        IDX_P,
+        IDX_P + 1,
+        IDX_P + 2,
+        IDX_V,
+        IDX_V + 1,
+        IDX_V + 2,
+        IDX_BG,
+        IDX_BG + 1,
+        IDX_BG + 2,
+    ];
+
+    /// One line (a column of F·m, or a row of m·Fᵀ: the same operation on the
+    /// transpose), given by `at(k)`, the index in storage of its k-th element.
+    #[inline(always)]
+    fn apply(&self, m: &mut [f64], at: impl Fn(usize) -> usize) {
         let v = Vector3::new(m[at(IDX_V)], m[at(IDX_V + 1)], m[at(IDX_V + 2)]);
         let ba = Vector3::new(m[at(IDX_BA)], m[at(IDX_BA + 1)], m[at(IDX_BA + 2)]);
         let dp = v * self.dt + self.p_ba * ba;
@@ -421,8 +447,58 @@ impl Transition {
             m[at(IDX_BG + i)] *= self.phi;
         }
     }
+
+    /// m ← F·m for the n×n column-major `m`: each column is contiguous.
+    fn apply_to_columns(&self, m: &mut [f64], n: usize) {
+        for column in m.chunks_exact_mut(n) {
+            self.apply(column, |k| k);
+        }
+    }
+
+    /// m ← m·Fᵀ for the n×n column-major `m`.
+    fn apply_to_rows(&self, m: &mut [f64], n: usize) {
+        assert!(m.len() >= n * CORE_STATES);
+        for row in 0..n {
+            self.apply(m, |k| row + k * n);
+        }
+    }
 }
 
+/// `P·Hᵀ` for a Jacobian `h` (m×n) that is mostly zeros (each measurement sees a few
+/// states), with `p` symmetric: column i is Σ_k h[i,k]·P[:,k] over the non-zero h[i,k],
+/// O(nnz·n) where the dense product is O(m·n²).
+fn p_ht(p: &DMatrix<f64>, h: &DMatrix<f64>) -> DMatrix<f64> {
+    let (m, n) = h.shape();
+    let mut out = DMatrix::zeros(n, m);
+    for i in 0..m {
+        for k in 0..n {
+            let hik = h[(i, k)];
+            if hik != 0.0 {
+                out.column_mut(i).axpy(hik, &p.column(k), 1.0);
+            }
+        }
+    }
+    out
+}
+
+/// `H·M` for a Jacobian `h` (m×n) that is mostly zeros and an n×c `pht`.
+fn h_times(h: &DMatrix<f64>, pht: &DMatrix<f64>) -> DMatrix<f64> {
+    let (m, n) = h.shape();
+    let mut out = DMatrix::zeros(m, pht.ncols());
+    for i in 0..m {
+        for k in 0..n {
+            let hik = h[(i, k)];
+            if hik != 0.0 {
+                for j in 0..pht.ncols() {
+                    out[(i, j)] += hik * pht[(k, j)];
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Jacobian row block selecting the position (3×n).
 pub fn h_pos(n: usize) -> DMatrix<f64> {
     let mut h = DMatrix::zeros(3, n);
     for i in 0..3 {

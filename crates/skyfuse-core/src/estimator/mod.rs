@@ -179,6 +179,9 @@ pub struct Estimator {
     /// The caller's clock when it last looked without a sample (see `observe_time`).
     observed_t: Option<i64>,
     invalid_texts: state::InvalidTexts,
+    /// EKF2's IMU down-sampling in front of the filter (`predict_period_ms`).
+    imu_down: imu::DownSampler,
+    imu_passed: Vec<(i64, crate::sample::Imu)>,
 }
 
 /// A snapshot of the core at most this often, µs. Any earlier snapshot re-runs to the
@@ -211,6 +214,8 @@ impl Estimator {
             late_dropped: 0,
             late_event_t: None,
             observed_t: None,
+            imu_down: imu::DownSampler::default(),
+            imu_passed: Vec::new(),
         }
     }
 
@@ -309,20 +314,51 @@ impl Estimator {
         })
         .observe(newest, newest - t);
         let usable = self.usable.get(src).is_none_or(|u| u.0);
-        if let SensorData::Imu(imu) = &s.data {
-            if usable && imu::checks(imu).is_ok() {
+        let fused_to = match &s.data {
+            SensorData::Imu(imu) if usable && imu::checks(imu).is_ok() => {
                 let rate = imu
                     .gyro
                     .map_or(Vector3::zeros(), |g| g - self.core.imu.gyro_bias);
                 self.output.push(t, rate, imu.accel);
+                // The filter gets the down-sampled IMU; the output predictor had them all.
+                let mut passed = std::mem::take(&mut self.imu_passed);
+                let period_us = (self.cfg.predict_period_ms * 1000.0) as i64;
+                self.imu_down.add(&s.source, t, imu, period_us, &mut passed);
+                let mut fused_to = None;
+                for (i, (t, imu)) in passed.drain(..).enumerate() {
+                    let key = Key { t, ..key.clone() };
+                    // Each its own place in the order: a second one is a new entry.
+                    let key = if i == 0 {
+                        key
+                    } else {
+                        self.seq += 1;
+                        Key {
+                            seq: self.seq - 1,
+                            ..key
+                        }
+                    };
+                    fused_to = fused_to.max(self.insert(key, SensorData::Imu(imu), usable));
+                }
+                self.imu_passed = passed;
+                fused_to
             }
-        }
+            data => self.insert(key, data.clone(), usable),
+        };
+        let limit = newest - self.horizon_us();
+        let out = self.run_to(limit, fused_to.as_ref());
+        self.prune();
+        out
+    }
+
+    /// Puts a sample into the log; one later than the horizon restores the snapshot
+    /// before it. Returns how far the re-run must fuse (the last sample fused before).
+    fn insert(&mut self, key: Key, data: SensorData, usable: bool) -> Option<Key> {
         let pos = self.log.partition_point(|e| e.key < key);
         self.log.insert(
             pos,
             Entry {
                 key: key.clone(),
-                data: s.data.clone(),
+                data,
                 usable,
             },
         );
@@ -339,24 +375,40 @@ impl Estimator {
                 .saturating_sub(1);
             let Some((skey, core)) = self.snaps.get(si).cloned() else {
                 self.log.remove(pos);
-                return vec![];
+                return None;
             };
             self.core = core;
             self.snaps.truncate(si);
             let from = skey.min(key);
             self.fused = self.log.partition_point(|e| e.key < from);
         }
-        let limit = newest - self.horizon_us();
-        let out = self.run_to(limit, fused_to.as_ref());
-        self.prune();
-        out
+        fused_to
     }
 
     /// Fuse every sample into the filter now, whatever the horizon (the end of a log).
     pub fn flush(&mut self) -> Vec<EstimatorEvent> {
+        self.pass_waiting_imu();
         let out = self.run_to(i64::MAX, None);
         self.prune();
         out
+    }
+
+    /// Puts the IMU samples the down-sampler still holds into the log.
+    fn pass_waiting_imu(&mut self) {
+        for (source, t, imu) in self.imu_down.take_all() {
+            let key = Key {
+                t,
+                rank: rank(SensorKind::Imu),
+                source,
+                seq: self.seq,
+            };
+            self.seq += 1;
+            // Already fused past it (a command cleared the history): it is too old.
+            if self.barrier.is_some_and(|b| t < b) {
+                continue;
+            }
+            self.insert(key, SensorData::Imu(imu), true);
+        }
     }
 
     /// Fuse the waiting samples up to time `limit`, and at least up to `through`.
@@ -430,18 +482,31 @@ impl Estimator {
         self.core.t
     }
 
-    /// Latest fused estimate (None before initialisation).
-    pub fn pose(&self) -> Option<FusedPose> {
+    /// The time [`Self::pose`] would carry, without computing the pose (None when it
+    /// would be None): the WRLS tick, or the present the filter's state is brought to.
+    pub fn pose_time(&self) -> Option<i64> {
         let c = &self.core;
         if !c.initialised() {
             return None;
         }
+        if c.mode_wrls {
+            return c.wrls.t;
+        }
+        c.ekf.as_ref()?;
+        let t = c.pred_t?;
+        Some(self.newest_t.map_or(t, |n| n.max(t)))
+    }
+
+    /// Latest fused estimate (None before initialisation).
+    pub fn pose(&self) -> Option<FusedPose> {
+        let c = &self.core;
+        let present = self.pose_time()?;
         let mut orientation = c.att.q;
         let mut angular_velocity = c.imu.rate.map(|r| r.1);
         let (time_us, position, velocity, position_cov, velocity_cov) = if c.mode_wrls {
             let period = self.cfg.wrls_period_ms * 1e-3;
             (
-                c.wrls.t?,
+                present,
                 c.wrls.x?,
                 c.wrls.last_delta / period,
                 Matrix3::from_diagonal(&c.wrls.var),
@@ -451,7 +516,6 @@ impl Estimator {
             // The filter's state at the horizon, brought to the present.
             let e = c.ekf.as_ref()?;
             let t = c.pred_t?;
-            let present = self.newest_t.map_or(t, |n| n.max(t));
             let base = Base {
                 t,
                 p: e.pos(),

@@ -8,6 +8,7 @@ pub mod faults;
 pub mod scenario;
 pub mod sensors;
 pub mod truth;
+pub mod ulog;
 
 use crate::sample::SensorData;
 use faults::FaultSchedule;
