@@ -206,8 +206,8 @@ impl Accumulated {
                 accel: mean(done.accel, done.accel_s),
                 orientation: newest.orientation,
                 // The mean of n samples with independent noise.
-                gyro_cov: newest.gyro_cov.map(|c| c / n),
-                accel_cov: newest.accel_cov.map(|c| c / n),
+                gyro_cov: newest.gyro_cov.map(|c| Box::new(*c / n)),
+                accel_cov: newest.accel_cov.map(|c| Box::new(*c / n)),
                 orientation_cov: newest.orientation_cov,
             },
         ))
@@ -216,7 +216,7 @@ impl Accumulated {
 
 /// Per-sample specific-force variance: the message's covariance, else the density.
 fn accel_var(imu: &Imu, dt: f64, cfg: &EstimatorConfig) -> f64 {
-    match imu.accel_cov {
+    match imu.accel_cov.as_deref() {
         Some(c) if c.trace().is_finite() && c.trace() > 0.0 => c.trace() / 3.0,
         _ => cfg.accel_noise_density.powi(2) / dt.max(1e-3),
     }
@@ -239,6 +239,8 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
     if let Some(q) = imu.orientation {
         let cov = imu
             .orientation_cov
+            .as_deref()
+            .copied()
             .filter(|c| c.iter().all(|v| v.is_finite()) && c.trace() > 0.0)
             .unwrap_or_else(|| Matrix3::identity() * cfg.attitude_noise_rad.powi(2));
         core.att.on_external(t, q, cov, None, true);

@@ -196,9 +196,11 @@ impl SensorModels {
             gyro: Some(gyro),
             accel: Some(accel),
             orientation: Some(self.noisy_attitude(s.attitude)),
-            gyro_cov: Some(Matrix3::identity() * GYRO_NOISE * GYRO_NOISE),
-            accel_cov: Some(Matrix3::identity() * ACCEL_NOISE * ACCEL_NOISE),
-            orientation_cov: Some(Matrix3::identity() * ORIENTATION_NOISE * ORIENTATION_NOISE),
+            gyro_cov: Some(Box::new(Matrix3::identity() * GYRO_NOISE * GYRO_NOISE)),
+            accel_cov: Some(Box::new(Matrix3::identity() * ACCEL_NOISE * ACCEL_NOISE)),
+            orientation_cov: Some(Box::new(
+                Matrix3::identity() * ORIENTATION_NOISE * ORIENTATION_NOISE,
+            )),
         }
     }
 

@@ -192,9 +192,9 @@ pub fn imu(m: &msgs::Imu, ros1: bool) -> Result<Decoded, DecodeError> {
             gyro,
             accel,
             orientation,
-            gyro_cov,
-            accel_cov,
-            orientation_cov,
+            gyro_cov: gyro_cov.map(Box::new),
+            accel_cov: accel_cov.map(Box::new),
+            orientation_cov: orientation_cov.map(Box::new),
         }),
     ))
 }
@@ -488,21 +488,21 @@ fn imu_msg(h: Header, i: &Imu) -> Result<msgs::Imu, EncodeError> {
         m.orientation = equat("Imu.orientation", q)?;
         m.orientation_covariance = ecov(
             "Imu.orientation_covariance",
-            cov3_rows(&i.orientation_cov).as_deref(),
+            cov3_rows(&i.orientation_cov.as_deref().copied()).as_deref(),
         )?;
     }
     if let Some(g) = &i.gyro {
         m.angular_velocity = evec3("Imu.angular_velocity", g)?;
         m.angular_velocity_covariance = ecov(
             "Imu.angular_velocity_covariance",
-            cov3_rows(&i.gyro_cov).as_deref(),
+            cov3_rows(&i.gyro_cov.as_deref().copied()).as_deref(),
         )?;
     }
     if let Some(a) = &i.accel {
         m.linear_acceleration = evec3("Imu.linear_acceleration", a)?;
         m.linear_acceleration_covariance = ecov(
             "Imu.linear_acceleration_covariance",
-            cov3_rows(&i.accel_cov).as_deref(),
+            cov3_rows(&i.accel_cov.as_deref().copied()).as_deref(),
         )?;
     }
     Ok(m)

@@ -237,15 +237,15 @@ fn expected(ty: RosType, v: &Value) -> Option<Decoded> {
             gyro: Some(v3(&v["angular_velocity"])),
             accel: Some(v3(&v["linear_acceleration"])),
             orientation: Some(quat(&v["orientation"])),
-            gyro_cov: Some(Matrix3::from_row_slice(&floats(
+            gyro_cov: Some(Box::new(Matrix3::from_row_slice(&floats(
                 &v["angular_velocity_covariance"],
-            ))),
-            accel_cov: Some(Matrix3::from_row_slice(&floats(
+            )))),
+            accel_cov: Some(Box::new(Matrix3::from_row_slice(&floats(
                 &v["linear_acceleration_covariance"],
-            ))),
-            orientation_cov: Some(Matrix3::from_row_slice(&floats(
+            )))),
+            orientation_cov: Some(Box::new(Matrix3::from_row_slice(&floats(
                 &v["orientation_covariance"],
-            ))),
+            )))),
         }),
         RosType::Range => SensorData::Range(SRange {
             distance_m: f(&v["range"]),
@@ -712,9 +712,9 @@ fn sample_roundtrip_every_decodable_type_both_formats() {
                 gyro: Some(V3::new(0.01, -0.02, 0.03)),
                 accel: full.then(|| V3::new(0.1, 0.2, 9.8)),
                 orientation: full.then(|| UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3)),
-                gyro_cov: full.then(|| Matrix3::from_diagonal_element(1e-4)),
+                gyro_cov: full.then(|| Box::new(Matrix3::from_diagonal_element(1e-4))),
                 accel_cov: None,
-                orientation_cov: full.then_some(full_cov),
+                orientation_cov: full.then(|| Box::new(full_cov)),
             }),
         );
     }

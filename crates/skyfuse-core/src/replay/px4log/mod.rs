@@ -185,13 +185,28 @@ fn read_topics(
         reported: 0,
         cb: progress,
     };
-    let mut samples = Vec::new();
-    let mut topics = Vec::with_capacity(files.len());
-    for f in &files {
-        topics.push(read_topic(f, &mut samples, &mut prog)?);
-    }
-    // Stable: equal stamps keep topic order (the TOPICS order, then instance).
-    crate::replay::sort_by_stamp(&mut samples);
+    // A ULog's rows are counted: room for them all at once, not regrown (and copied)
+    // as they come.
+    let rows: usize = files
+        .iter()
+        .map(|f| match &f.data {
+            TopicData::Ulog { columns, .. } => columns.first().map_or(0, Vec::len),
+            TopicData::Csv { .. } => 0,
+        })
+        .sum();
+    let mut samples = Vec::with_capacity(rows);
+    let topics = match read_ulog_merged(&files, &mut samples, &mut prog)? {
+        Some(topics) => topics,
+        None => {
+            let mut topics = Vec::with_capacity(files.len());
+            for f in &files {
+                topics.push(read_topic(f, &mut samples, &mut prog)?);
+            }
+            // Stable: equal stamps keep topic order (the TOPICS order, then instance).
+            crate::replay::sort_by_stamp(&mut samples);
+            topics
+        }
+    };
     let has = |t: &str| files.iter().any(|f| TOPICS[f.order.0].0 == t);
     let mut stand_ins = Vec::new();
     attach_angular_velocity(&mut samples);
@@ -554,64 +569,89 @@ fn find_topic_files(dir: &Path) -> Result<Vec<TopicFile>, Px4LogError> {
     Ok(files)
 }
 
-/// The topics of a ULog file that replay reads, parsed by PX4's `px4-ulog` crate.
+/// The topics of a ULog file that replay reads, parsed by PX4's `px4-ulog` crate: its
+/// stream parser, keeping only the wanted topics' fields, each as it is decoded, as
+/// numbers (a flight log holds a hundred topics; the crate's whole-file parser would
+/// keep every one, and in a form converted again afterwards).
 fn ulog_topic_files(file: &Path) -> Result<Vec<TopicFile>, Px4LogError> {
-    use px4_ulog::full_parser::SomeVec;
+    use px4_ulog::stream_parser::{Message, SimpleCallbackResult};
     let path_str = file.to_str().ok_or_else(|| Px4LogError::Ulog {
         file: file.to_path_buf(),
         reason: "the path is not UTF-8".into(),
     })?;
+    // (topic, instance) → (TOPICS index, field names, columns); by message id.
+    type Columns = (usize, u8, Vec<String>, Vec<Vec<f64>>);
+    let mut by_id: Vec<Option<Columns>> = Vec::new();
+    let mut unwanted: Vec<bool> = Vec::new();
+    let mut collect = |m: &Message| {
+        if let Message::Data(d) = m {
+            let id = usize::from(d.msg_id);
+            if id >= by_id.len() {
+                by_id.resize_with(id + 1, || None);
+                unwanted.resize(id + 1, false);
+            }
+            if unwanted[id] {
+                return SimpleCallbackResult::KeepReading;
+            }
+            let format = d.flattened_format;
+            let entry = match &mut by_id[id] {
+                Some(e) => e,
+                slot => {
+                    let Some(ti) = TOPICS
+                        .iter()
+                        .position(|(p, _, _)| *p == format.message_name)
+                    else {
+                        unwanted[id] = true;
+                        return SimpleCallbackResult::KeepReading;
+                    };
+                    let names = format
+                        .fields
+                        .iter()
+                        .map(|f| f.flattened_field_name.clone())
+                        .collect();
+                    slot.insert((
+                        ti,
+                        d.multi_id.value(),
+                        names,
+                        vec![Vec::new(); format.fields.len()],
+                    ))
+                }
+            };
+            for (col, field) in entry.3.iter_mut().zip(&format.fields) {
+                col.push(ulog_field(d.data, field));
+            }
+        }
+        SimpleCallbackResult::KeepReading
+    };
     // The crate panics on some corrupt files instead of returning an error: a bad log
     // must be an error that names it, never a crash of the replay.
-    let parsed = std::panic::catch_unwind(|| px4_ulog::full_parser::read_file(path_str))
-        .map_err(|_| Px4LogError::Ulog {
-            file: file.to_path_buf(),
-            reason: "the ULog parser failed on a corrupt record".into(),
-        })?
-        .map_err(|e| Px4LogError::Ulog {
-            file: file.to_path_buf(),
-            reason: e.to_string(),
-        })?;
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        px4_ulog::stream_parser::read_file_with_simple_callback(path_str, &mut collect)
+    }))
+    .map_err(|_| Px4LogError::Ulog {
+        file: file.to_path_buf(),
+        reason: "the ULog parser failed on a corrupt record".into(),
+    })?
+    .map_err(|e| Px4LogError::Ulog {
+        file: file.to_path_buf(),
+        reason: e.to_string(),
+    })?;
     let mut files = Vec::new();
-    for (name, instances) in &parsed.messages {
-        let Some(ti) = TOPICS.iter().position(|(p, _, _)| p == name) else {
-            continue;
-        };
-        for (multi, fields) in instances {
-            let inst = u32::from(multi.value());
-            let mut cols: Vec<(&String, Vec<f64>)> = fields
-                .iter()
-                .map(|(k, v)| {
-                    let col: Vec<f64> = match v {
-                        SomeVec::Int8(x) => x.iter().map(|&v| v.into()).collect(),
-                        SomeVec::UInt8(x) => x.iter().map(|&v| v.into()).collect(),
-                        SomeVec::Int16(x) => x.iter().map(|&v| v.into()).collect(),
-                        SomeVec::UInt16(x) => x.iter().map(|&v| v.into()).collect(),
-                        SomeVec::Int32(x) => x.iter().map(|&v| v.into()).collect(),
-                        SomeVec::UInt32(x) => x.iter().map(|&v| v.into()).collect(),
-                        SomeVec::Int64(x) => x.iter().map(|&v| v as f64).collect(),
-                        SomeVec::UInt64(x) => x.iter().map(|&v| v as f64).collect(),
-                        SomeVec::Float(x) => x.iter().map(|&v| v.into()).collect(),
-                        SomeVec::Double(x) => x.clone(),
-                        SomeVec::Bool(x) => x.iter().map(|&v| f64::from(u8::from(v))).collect(),
-                        SomeVec::Char(x) => x.iter().map(|&v| f64::from(u32::from(v))).collect(),
-                    };
-                    (k, col)
-                })
-                .collect();
-            // `timestamp` first, the rest by name: a stable header.
-            cols.sort_by(|a, b| (a.0 != "timestamp", a.0).cmp(&(b.0 != "timestamp", b.0)));
-            let header = cols.iter().map(|(k, _)| (*k).clone()).collect();
-            let columns = cols.into_iter().map(|(_, c)| c).collect();
-            files.push(TopicFile {
-                path: file.to_path_buf(),
-                name: format!("{name}_{inst}"),
-                source: String::new(),
-                kind: TOPICS[ti].2,
-                order: (ti, inst),
-                data: TopicData::Ulog { header, columns },
-            });
-        }
+    for (ti, multi, names, columns) in by_id.into_iter().flatten() {
+        let name = TOPICS[ti].0;
+        let inst = u32::from(multi);
+        let mut cols: Vec<(String, Vec<f64>)> = names.into_iter().zip(columns).collect();
+        // `timestamp` first, the rest by name: a stable header.
+        cols.sort_by(|a, b| (a.0 != "timestamp", &a.0).cmp(&(b.0 != "timestamp", &b.0)));
+        let (header, columns) = cols.into_iter().unzip();
+        files.push(TopicFile {
+            path: file.to_path_buf(),
+            name: format!("{name}_{inst}"),
+            source: String::new(),
+            kind: TOPICS[ti].2,
+            order: (ti, inst),
+            data: TopicData::Ulog { header, columns },
+        });
     }
     if files.is_empty() {
         return Err(Px4LogError::Ulog {
@@ -621,6 +661,29 @@ fn ulog_topic_files(file: &Path) -> Result<Vec<TopicFile>, Px4LogError> {
     }
     name_sources(&mut files);
     Ok(files)
+}
+
+/// One field of a ULog data message as a number (NaN if the message is too short).
+fn ulog_field(data: &[u8], field: &px4_ulog::stream_parser::model::FlattenedField) -> f64 {
+    use px4_ulog::stream_parser::model::FlattenedFieldType as T;
+    let at = usize::from(field.offset);
+    fn take<const N: usize>(data: &[u8], at: usize) -> Option<[u8; N]> {
+        data.get(at..at + N).and_then(|b| b.try_into().ok())
+    }
+    let v = match field.field_type {
+        T::Int8 => take::<1>(data, at).map(|b| f64::from(i8::from_le_bytes(b))),
+        T::UInt8 | T::Char => take::<1>(data, at).map(|b| f64::from(b[0])),
+        T::Bool => take::<1>(data, at).map(|b| f64::from(u8::from(b[0] != 0))),
+        T::Int16 => take::<2>(data, at).map(|b| f64::from(i16::from_le_bytes(b))),
+        T::UInt16 => take::<2>(data, at).map(|b| f64::from(u16::from_le_bytes(b))),
+        T::Int32 => take::<4>(data, at).map(|b| f64::from(i32::from_le_bytes(b))),
+        T::UInt32 => take::<4>(data, at).map(|b| f64::from(u32::from_le_bytes(b))),
+        T::Int64 => take::<8>(data, at).map(|b| i64::from_le_bytes(b) as f64),
+        T::UInt64 => take::<8>(data, at).map(|b| u64::from_le_bytes(b) as f64),
+        T::Float => take::<4>(data, at).map(|b| f64::from(f32::from_le_bytes(b))),
+        T::Double => take::<8>(data, at).map(f64::from_le_bytes),
+    };
+    v.unwrap_or(f64::NAN)
 }
 
 struct Progress<'a> {
@@ -641,6 +704,114 @@ impl Progress<'_> {
             (self.cb)(self.done, self.total);
         }
     }
+}
+
+/// A ULog's topics, each in time order, mapped row by row in the order of their merged
+/// times: every sample is made once, in its place, where mapping topic by topic and
+/// then sorting moved each (they are large) across memory again (a fifth of an hour-long
+/// log's replay). The order is the stable sort's: at equal times, the file order (the
+/// TOPICS order, then instance), then row order. None (nothing read) when a file is
+/// not a ULog topic or a topic's times go back: the caller sorts instead.
+fn read_ulog_merged(
+    files: &[TopicFile],
+    samples: &mut Vec<Sample>,
+    prog: &mut Progress<'_>,
+) -> Result<Option<Vec<TopicSummary>>, Px4LogError> {
+    struct Cursor<'a> {
+        tf: &'a TopicFile,
+        header: &'a [String],
+        columns: &'a [Vec<f64>],
+        mapper: Mapper,
+        /// Each row's time as the mapper reads it; a row without one takes the previous
+        /// row's (it is skipped when mapped, so its place does not matter).
+        keys: Vec<i64>,
+        row: usize,
+        source: Arc<str>,
+        summary: TopicSummary,
+    }
+    let mut cursors = Vec::with_capacity(files.len());
+    for tf in files {
+        let TopicData::Ulog { header, columns } = &tf.data else {
+            return Ok(None);
+        };
+        let mapper = Mapper::new(tf.kind, &tf.path, header)?;
+        let time = columns
+            .get(mapper.time_column())
+            .map_or(&[][..], Vec::as_slice);
+        let mut last = i64::MIN;
+        let keys: Vec<i64> = time
+            .iter()
+            .map(|v| {
+                if v.fract() == 0.0 && (0.0..9.0e18).contains(v) {
+                    last = *v as i64;
+                }
+                last
+            })
+            .collect();
+        if keys.windows(2).any(|w| w[1] < w[0]) {
+            return Ok(None);
+        }
+        cursors.push(Cursor {
+            tf,
+            header,
+            columns,
+            mapper,
+            keys,
+            row: 0,
+            source: Arc::from(tf.source.as_str()),
+            summary: TopicSummary {
+                name: tf.name.clone(),
+                source: tf.source.clone(),
+                rows: 0,
+                skipped: 0,
+                first_error: None,
+                span_us: None,
+            },
+        });
+    }
+    let mut values = Vec::new();
+    loop {
+        // Few topics: a scan of their next rows beats a heap. Ties go to the first.
+        let mut next: Option<(i64, usize)> = None;
+        for (i, c) in cursors.iter().enumerate() {
+            if let Some(&k) = c.keys.get(c.row) {
+                if next.is_none_or(|(best, _)| k < best) {
+                    next = Some((k, i));
+                }
+            }
+        }
+        let Some((_, i)) = next else { break };
+        // That topic's rows up to the next other topic's time (theirs first at a tie
+        // only when they come first in the file order).
+        let until = cursors
+            .iter()
+            .enumerate()
+            .filter(|&(j, _)| j != i)
+            .filter_map(|(j, c)| c.keys.get(c.row).map(|&k| (k, j)))
+            .min();
+        let c = &mut cursors[i];
+        while let Some(&k) = c.keys.get(c.row) {
+            if until.is_some_and(|(u, j)| k > u || (k == u && j < i)) {
+                break;
+            }
+            values.clear();
+            values.extend(
+                c.columns
+                    .iter()
+                    .map(|col| col.get(c.row).copied().unwrap_or(f64::NAN)),
+            );
+            let row = Row {
+                file: &c.tf.path,
+                line: c.row + 1,
+                header: c.header,
+                fields: Fields::Num(&values),
+            };
+            take_row(&mut c.summary, &c.source, c.mapper.map(&row), samples);
+            prog.advance(1);
+            c.row += 1;
+        }
+    }
+    Ok(Some(cursors.into_iter().map(|c| c.summary).collect()))
 }
 
 /// Counts one row's outcome and keeps its sample.

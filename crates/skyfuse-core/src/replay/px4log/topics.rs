@@ -144,6 +144,21 @@ fn transform_cov6(c: Matrix6<f64>, a: Matrix3<f64>, b: Matrix3<f64>) -> Matrix6<
 }
 
 impl Mapper {
+    /// The column the sample's time comes from.
+    pub(super) fn time_column(&self) -> usize {
+        match self {
+            Mapper::Attitude(c) => c.t,
+            Mapper::Imu(c) => c.t,
+            Mapper::SensorCombined(c) | Mapper::AngularVelocity(c) | Mapper::Ekf2FlowGyro(c) => c.t,
+            Mapper::Gps(c) => c.t,
+            Mapper::Range(c) => c.t,
+            Mapper::Flow(c) => c.t,
+            Mapper::Vio(c) => c.t,
+            Mapper::Ekf2(c) => c.t,
+            Mapper::LandDetected(c) | Mapper::Armed(c) => c.t,
+        }
+    }
+
     pub(super) fn new(kind: Kind, file: &Path, header: &[String]) -> Result<Self, Px4LogError> {
         let h = Cols { file, header };
         let t = h.get("timestamp")?;
