@@ -245,8 +245,9 @@ pub struct GnssFix {
     /// Altitude in metres (ellipsoid for NavSatFix, MSL for GPS_RAW_INT; used relatively).
     pub alt_m: f64,
     pub fix: GnssFixType,
-    /// Position covariance in ENU, m², if the message reports one.
-    pub position_cov: Option<Matrix3<f64>>,
+    /// Position covariance in ENU, m², if the message reports one (boxed: a sample of
+    /// every kind is as large as its largest kind).
+    pub position_cov: Option<Box<Matrix3<f64>>>,
     pub satellites: Option<u8>,
     pub hdop: Option<f64>,
     pub vdop: Option<f64>,

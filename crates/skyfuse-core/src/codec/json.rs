@@ -170,7 +170,7 @@ pub fn decode(payload: &[u8]) -> Result<Decoded, DecodeError> {
                     lon_deg: in_range("gnss.lon_deg", lon_deg, -180.0, 180.0, "longitude")?,
                     alt_m: in_range("gnss.alt_m", alt_m, -1000.0, 100_000.0, "altitude")?,
                     fix,
-                    position_cov: cov,
+                    position_cov: cov.map(Box::new),
                     satellites,
                     hdop: hdop.map(|h| finite("gnss.hdop", h)).transpose()?,
                     vdop: None,
@@ -302,7 +302,7 @@ pub fn encode(stamp_us: i64, data: &SensorData) -> Result<String, EncodeError> {
             "kind": "gnss", "stamp_us": stamp_us,
             "lat_deg": g.lat_deg, "lon_deg": g.lon_deg, "alt_m": g.alt_m,
             "fix": serde_json::to_value(g.fix).unwrap_or(serde_json::Value::Null),
-            "position_cov": g.position_cov.map(|c| c.transpose().as_slice().to_vec()),
+            "position_cov": g.position_cov.as_ref().map(|c| c.transpose().as_slice().to_vec()),
             "satellites": g.satellites, "hdop": g.hdop,
         }),
         SensorData::Flow(f) => json!({

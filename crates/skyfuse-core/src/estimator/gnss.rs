@@ -36,7 +36,7 @@ pub fn checks(fix: &GnssFix, cfg: &EstimatorConfig) -> Result<Matrix3<f64>, &'st
     {
         return Err("coordinates not finite or out of range");
     }
-    let cov = match fix.position_cov {
+    let cov = match fix.position_cov.as_deref().copied() {
         Some(c) if c.iter().all(|v| v.is_finite()) && (0..3).all(|i| c[(i, i)] > 0.0) => c,
         _ => {
             let Some(hdop) = fix.hdop.filter(|h| h.is_finite() && *h > 0.0) else {

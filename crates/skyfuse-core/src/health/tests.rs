@@ -31,7 +31,7 @@ fn fix(east_m: f64, fix: GnssFixType) -> Sample {
             lon_deg: lon,
             alt_m: alt,
             fix,
-            position_cov: Some(Matrix3::identity() * 0.5),
+            position_cov: Some(Box::new(Matrix3::identity() * 0.5)),
             satellites: Some(14),
             hdop: Some(0.8),
             vdop: None,

@@ -183,7 +183,7 @@ pub fn apply(data: &mut SensorData, active: &[Fault], t: f64) {
                 m.fix = GnssFixType::NoFix;
                 m.satellites = Some(3);
                 m.hdop = Some(25.0);
-                m.position_cov = m.position_cov.map(|c| c * 1e4);
+                m.position_cov = m.position_cov.take().map(|c| Box::new(*c * 1e4));
                 m.velocity = None;
             }
             (FaultKind::Jump, SensorData::Gnss(m)) => {
@@ -199,7 +199,7 @@ pub fn apply(data: &mut SensorData, active: &[Fault], t: f64) {
                 }
             }
             (FaultKind::Covariance, SensorData::Gnss(m)) => {
-                m.position_cov = Some(Matrix3::identity() * 25.0);
+                m.position_cov = Some(Box::new(Matrix3::identity() * 25.0));
                 m.hdop = Some(6.0);
             }
             (FaultKind::DarkFloor, SensorData::Flow(m)) => {

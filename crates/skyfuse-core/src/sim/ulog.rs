@@ -260,7 +260,7 @@ impl<W: Write> UlogWriter<W> {
                     GnssFixType::RtkFloat => 5,
                     GnssFixType::RtkFixed => 6,
                 });
-                let (eph, epv) = g.position_cov.map_or((f64::NAN, f64::NAN), |c| {
+                let (eph, epv) = g.position_cov.as_deref().map_or((f64::NAN, f64::NAN), |c| {
                     (c[(0, 0)].max(c[(1, 1)]).sqrt(), c[(2, 2)].sqrt())
                 });
                 put_f32s(&mut b, &[eph, epv]);

@@ -519,7 +519,7 @@ fn gps_raw_int(f: &Fields) -> Result<Mapped, DecodeError> {
             lon_deg,
             alt_m,
             fix,
-            position_cov,
+            position_cov: position_cov.map(Box::new),
             satellites: (satellites != u64::from(u8::MAX)).then_some(satellites as u8),
             hdop,
             vdop,

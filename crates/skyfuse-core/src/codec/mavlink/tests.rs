@@ -160,7 +160,7 @@ fn golden_gps_raw_int() {
     assert_eq!(g.alt_m, 488.5);
     assert_eq!(g.fix, GnssFixType::Fix3d);
     assert_eq!(
-        g.position_cov,
+        g.position_cov.as_deref().copied(),
         Some(Matrix3::from_diagonal(&v3(0.8 * 0.8, 0.8 * 0.8, 1.2 * 1.2)))
     );
     assert_eq!(g.satellites, Some(14));
@@ -533,7 +533,7 @@ fn check_expected(d: &Decoded, e: &Value, label: &str) {
                 e["fix"],
                 "{label} fix"
             );
-            let diag = g.position_cov.map(|c| c.diagonal());
+            let diag = g.position_cov.as_deref().map(|c| c.diagonal());
             check_opt::<3>(
                 diag.as_ref().map(|v| v.as_slice()),
                 &e["position_cov_diag"],

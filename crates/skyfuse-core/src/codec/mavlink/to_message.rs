@@ -94,7 +94,7 @@ pub fn sample_to_message(stamp_us: Micros, data: &SensorData) -> Result<MavMessa
                 }
                 None => (UNKNOWN16, UNKNOWN16),
             };
-            let (h_acc, v_acc) = match g.position_cov {
+            let (h_acc, v_acc) = match g.position_cov.as_deref() {
                 Some(c) => (
                     int_of(
                         "gnss.position_cov",

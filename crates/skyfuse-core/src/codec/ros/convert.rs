@@ -137,7 +137,7 @@ pub fn navsatfix(m: &msgs::NavSatFix, ros1: bool) -> Result<Decoded, DecodeError
             lon_deg,
             alt_m,
             fix,
-            position_cov,
+            position_cov: position_cov.map(Box::new),
             satellites: None,
             hdop: None,
             vdop: None,
@@ -441,7 +441,7 @@ fn gnss_msg(h: Header, g: &GnssFix) -> Result<msgs::NavSatFix, EncodeError> {
             NavSatStatus::STATUS_GBAS_FIX
         }
     };
-    let position_covariance_type = match &g.position_cov {
+    let position_covariance_type = match g.position_cov.as_deref() {
         None => msgs::NavSatFix::COVARIANCE_TYPE_UNKNOWN,
         Some(c) if *c == Matrix3::from_diagonal(&c.diagonal()) => {
             msgs::NavSatFix::COVARIANCE_TYPE_DIAGONAL_KNOWN
@@ -459,7 +459,7 @@ fn gnss_msg(h: Header, g: &GnssFix) -> Result<msgs::NavSatFix, EncodeError> {
         altitude: efin("NavSatFix.altitude", g.alt_m)?,
         position_covariance: ecov(
             "NavSatFix.position_covariance",
-            cov3_rows(&g.position_cov).as_deref(),
+            cov3_rows(&g.position_cov.as_deref().copied()).as_deref(),
         )?,
         position_covariance_type,
     })

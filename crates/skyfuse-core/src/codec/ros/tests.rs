@@ -227,7 +227,7 @@ fn expected(ty: RosType, v: &Value) -> Option<Decoded> {
                 _ => GnssFixType::Dgps,
             },
             position_cov: (v["position_covariance_type"].as_u64() != Some(0))
-                .then(|| Matrix3::from_row_slice(&floats(&v["position_covariance"]))),
+                .then(|| Box::new(Matrix3::from_row_slice(&floats(&v["position_covariance"])))),
             satellites: None,
             hdop: None,
             vdop: None,
@@ -696,7 +696,7 @@ fn sample_roundtrip_every_decodable_type_both_formats() {
                 lon_deg: -8.5,
                 alt_m: 400.0,
                 fix,
-                position_cov: cov,
+                position_cov: cov.map(Box::new),
                 satellites: None,
                 hdop: None,
                 vdop: None,

@@ -396,7 +396,7 @@ fn gps(c: &GpsCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
             lon_deg: lon,
             alt_m: alt,
             fix,
-            position_cov,
+            position_cov: position_cov.map(Box::new),
             satellites: Some(r.u8(c.satellites)?),
             hdop: dop(c.hdop)?,
             vdop: dop(c.vdop)?,
