@@ -65,6 +65,50 @@ pub enum EvalError {
     AlignAndOrigin,
 }
 
+/// Appends `v` with `digits` decimals, exactly as `format!("{v:.digits$}")` does (the
+/// exact binary value rounded half to even, a negative zero signed) but from integers:
+/// formatting floats was a tenth of a replay that writes a long log's tracks.
+pub fn push_fixed(out: &mut String, v: f64, digits: u32) {
+    // Beyond these the general formatter (its cases are rare: not a pose's numbers).
+    if !v.is_finite() || v.abs() >= 1e15 || digits > 9 {
+        let _ = write!(out, "{v:.*}", digits as usize);
+        return;
+    }
+    let bits = v.to_bits();
+    let exponent = ((bits >> 52) & 0x7ff) as i32;
+    let fraction = bits & ((1 << 52) - 1);
+    // v = mantissa · 2^power, exactly.
+    let (mantissa, power) = if exponent == 0 {
+        (fraction, -1074)
+    } else {
+        (fraction | (1 << 52), exponent - 1075)
+    };
+    let scale = 10u128.pow(digits);
+    // Below 1e15 (< 2^50) the power is negative: v·10^digits = n / 2^shift.
+    let n = u128::from(mantissa) * scale;
+    let shift = power.unsigned_abs();
+    let scaled = if power >= 0 {
+        n << shift
+    } else if shift >= 128 {
+        0
+    } else {
+        let (q, r, half) = (n >> shift, n & ((1 << shift) - 1), 1u128 << (shift - 1));
+        if r > half || (r == half && q & 1 == 1) {
+            q + 1
+        } else {
+            q
+        }
+    };
+    if v.is_sign_negative() {
+        out.push('-');
+    }
+    // Both parts fit 64 bits (below 1e15, and below 10^9).
+    let _ = write!(out, "{}", (scaled / scale) as u64);
+    if digits > 0 {
+        let _ = write!(out, ".{:0width$}", (scaled % scale) as u64, width = digits as usize);
+    }
+}
+
 impl Trajectory {
     pub fn new() -> Self {
         Self::default()
@@ -108,12 +152,12 @@ impl Trajectory {
         self.check()?;
         let mut s = String::with_capacity(self.len() * 96);
         for ((t, p), q) in self.t.iter().zip(&self.p).zip(&self.q) {
-            // Writing to a String cannot fail.
-            let _ = writeln!(
-                s,
-                "{t:.6} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9}",
-                p.x, p.y, p.z, q.i, q.j, q.k, q.w
-            );
+            push_fixed(&mut s, *t, 6);
+            for v in [p.x, p.y, p.z, q.i, q.j, q.k, q.w] {
+                s.push(' ');
+                push_fixed(&mut s, v, 9);
+            }
+            s.push('\n');
         }
         Ok(s)
     }
@@ -543,6 +587,38 @@ pub fn evo_ape(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fixed_formatting_is_the_standard_formatters_to_the_byte() {
+        let mut cases: Vec<f64> = vec![
+            0.0, -0.0, 0.5, 2.5, -0.25, 1e-20, -1e-20, 0.000_000_000_5, 0.000_000_001_5,
+            1.0005, 123_456.789_012_345_6, 1e15, 9.999e14, -9.999e14, f64::NAN,
+            f64::INFINITY, f64::NEG_INFINITY, f64::MIN_POSITIVE, 5e-324, 1.0 / 3.0,
+        ];
+        // Ties at every decimal place: k / 2^n, exactly halfway more often than not.
+        for n in 1..40 {
+            for k in [1_u64, 3, 5, 7, 1_000_001, 123_456_789] {
+                cases.push(k as f64 / (1_u64 << n) as f64);
+                cases.push(-(k as f64) / (1_u64 << n) as f64);
+            }
+        }
+        // Random bit patterns over the magnitudes a pose and a time have (and beyond).
+        let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
+        for _ in 0..300_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let exponent = 1023 - 60 + (x >> 52) % 115;
+            cases.push(f64::from_bits((x & 0x800f_ffff_ffff_ffff) | (exponent << 52)));
+        }
+        for v in cases {
+            for digits in [0, 1, 6, 9] {
+                let mut s = String::new();
+                push_fixed(&mut s, v, digits);
+                assert_eq!(s, format!("{v:.*}", digits as usize), "{v:e} {digits}");
+            }
+        }
+    }
 
     fn quat(w: f64, x: f64, y: f64, z: f64) -> UnitQuaternion<f64> {
         UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z))
