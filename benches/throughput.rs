@@ -296,6 +296,70 @@ fn imu_1khz_bench() {
     );
 }
 
+/// `skyfuse replay` of a simulated PX4 ULog with a 1 kHz IMU, the whole command as a
+/// user runs it (reading, the estimator and health, the evaluation, every output file),
+/// after `skyfuse sim --ulog` wrote the log: samples per second end to end, median of 3.
+fn ulog_replay_bench() {
+    let bin = env!("CARGO_BIN_EXE_skyfuse");
+    let dir = std::env::temp_dir().join(format!("skyfuse-ulog-bench-{}", std::process::id()));
+    let _ = std::fs::create_dir_all(&dir);
+    println!("## `skyfuse replay` of a 1 kHz ULog, end to end (median of {ULOG_REPS}; min–max)\n");
+    println!("| log | samples | s | samples/s |");
+    println!("|---|---|---|---|");
+    for (scenario, seconds) in [("outdoor", 600), ("demo", 600)] {
+        let log = dir.join(format!("{scenario}.ulg"));
+        let wrote = std::process::Command::new(bin)
+            .args(["sim", "--ulog"])
+            .arg(&log)
+            .args(["--scenario", scenario, "--imu-hz", "1000", "--duration"])
+            .arg(seconds.to_string())
+            .output();
+        let Some(line) = wrote.ok().filter(|o| o.status.success()).and_then(|o| {
+            String::from_utf8_lossy(&o.stdout)
+                .lines()
+                .find(|l| l.starts_with("wrote "))
+                .map(str::to_string)
+        }) else {
+            println!("| {scenario} | (sim --ulog failed) | | |");
+            continue;
+        };
+        // "wrote FILE (N messages, ...": every message is a sample.
+        let samples: f64 = line
+            .split('(')
+            .nth(1)
+            .and_then(|r| r.split_whitespace().next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or(f64::NAN);
+        let mut times = Vec::new();
+        for _ in 0..ULOG_REPS {
+            let t = Instant::now();
+            let ok = std::process::Command::new(bin)
+                .arg("replay")
+                .arg(&log)
+                .arg("--out")
+                .arg(dir.join(scenario))
+                .output()
+                .is_ok_and(|o| o.status.success());
+            if ok {
+                times.push(t.elapsed().as_secs_f64());
+            }
+        }
+        if times.is_empty() {
+            println!("| {scenario} | (replay failed) | | |");
+            continue;
+        }
+        let (m, lo, hi) = median(times);
+        println!(
+            "| {scenario}, {seconds} s | {samples:.0} | {m:.2} ({lo:.2}–{hi:.2}) | {:.0} |",
+            samples / m
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    println!();
+}
+
+const ULOG_REPS: usize = 3;
+
 fn replay_bench() {
     let dir =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/px4-flow-vio-7c824ee5");
@@ -445,12 +509,13 @@ fn main() {
     }
     // `cargo bench --bench throughput -- ingest` runs one section.
     let only = std::env::args().skip(1).find(|a| !a.starts_with('-'));
-    let sections: [(&str, fn()); 5] = [
+    let sections: [(&str, fn()); 6] = [
         ("decode", decode_bench),
         ("ingest", ingest_bench),
         ("estimator", estimator_bench),
         ("imu1k", imu_1khz_bench),
         ("replay", replay_bench),
+        ("ulog", ulog_replay_bench),
     ];
     for (name, run) in sections {
         if only.as_deref().is_none_or(|o| o == name) {

@@ -327,3 +327,63 @@ fn an_arducopter_telemetry_log_replays_against_the_simulators_truth() {
     assert!(a.valid_fraction > 0.9, "{a:?}");
     assert!(a.airborne_valid_fraction.is_some_and(|f| f > 0.99), "{a:?}");
 }
+
+#[test]
+fn a_simulated_1_khz_ulog_replays_through_the_cli() {
+    // `skyfuse sim --ulog` writes a flight with a 1 kHz IMU as a PX4 ULog; `skyfuse
+    // replay` reads it (px4-ulog's parser), down-samples the IMU for the filter and
+    // scores the fused track against the flight's camera odometry.
+    let bin = env!("CARGO_BIN_EXE_skyfuse");
+    let dir = tmp("ulog");
+    std::fs::create_dir_all(&dir).expect("dir");
+    let log = dir.join("flight.ulg");
+    let wrote = std::process::Command::new(bin)
+        .args([
+            "sim",
+            "--seed",
+            "4",
+            "--imu-hz",
+            "1000",
+            "--duration",
+            "40",
+            "--ulog",
+        ])
+        .arg(&log)
+        .output()
+        .expect("sim runs");
+    assert!(wrote.status.success(), "{wrote:?}");
+    let stdout = String::from_utf8_lossy(&wrote.stdout);
+    let messages: u64 = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix(&format!("wrote {} (", log.display())))
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no count in {stdout}"));
+    // 40 s of IMU 1 kHz, T265 200, attitude 50, flow 50, range 25, GPS 10 Hz.
+    assert!((53_000..=53_600).contains(&messages), "{messages}");
+    let out = dir.join("replay");
+    let replayed = std::process::Command::new(bin)
+        .arg("replay")
+        .arg(&log)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .expect("replay runs");
+    assert!(replayed.status.success(), "{replayed:?}");
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).expect("summary"))
+            .expect("json");
+    assert_eq!(summary["samples"].as_u64(), Some(messages));
+    let fused = summary["scores"]
+        .as_array()
+        .and_then(|s| s.iter().find(|x| x["name"] == "fused"))
+        .expect("fused score");
+    let rmse = fused["ape"]["rmse"].as_f64().expect("rmse");
+    let valid = summary["availability"]["valid_fraction"]
+        .as_f64()
+        .expect("valid");
+    println!("1 kHz ULog replay vs its VIO: APE {rmse:.4} m, valid {valid:.4}");
+    assert!(rmse < 0.05, "{fused}");
+    assert!(valid > 0.98, "{summary}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -105,7 +105,12 @@ pub fn push_fixed(out: &mut String, v: f64, digits: u32) {
     // Both parts fit 64 bits (below 1e15, and below 10^9).
     let _ = write!(out, "{}", (scaled / scale) as u64);
     if digits > 0 {
-        let _ = write!(out, ".{:0width$}", (scaled % scale) as u64, width = digits as usize);
+        let _ = write!(
+            out,
+            ".{:0width$}",
+            (scaled % scale) as u64,
+            width = digits as usize
+        );
     }
 }
 
@@ -591,9 +596,26 @@ mod tests {
     #[test]
     fn fixed_formatting_is_the_standard_formatters_to_the_byte() {
         let mut cases: Vec<f64> = vec![
-            0.0, -0.0, 0.5, 2.5, -0.25, 1e-20, -1e-20, 0.000_000_000_5, 0.000_000_001_5,
-            1.0005, 123_456.789_012_345_6, 1e15, 9.999e14, -9.999e14, f64::NAN,
-            f64::INFINITY, f64::NEG_INFINITY, f64::MIN_POSITIVE, 5e-324, 1.0 / 3.0,
+            0.0,
+            -0.0,
+            0.5,
+            2.5,
+            -0.25,
+            1e-20,
+            -1e-20,
+            0.000_000_000_5,
+            0.000_000_001_5,
+            1.0005,
+            123_456.789_012_345_6,
+            1e15,
+            9.999e14,
+            -9.999e14,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::MIN_POSITIVE,
+            5e-324,
+            1.0 / 3.0,
         ];
         // Ties at every decimal place: k / 2^n, exactly halfway more often than not.
         for n in 1..40 {
@@ -609,7 +631,9 @@ mod tests {
             x ^= x >> 7;
             x ^= x << 17;
             let exponent = 1023 - 60 + (x >> 52) % 115;
-            cases.push(f64::from_bits((x & 0x800f_ffff_ffff_ffff) | (exponent << 52)));
+            cases.push(f64::from_bits(
+                (x & 0x800f_ffff_ffff_ffff) | (exponent << 52),
+            ));
         }
         for v in cases {
             for digits in [0, 1, 6, 9] {

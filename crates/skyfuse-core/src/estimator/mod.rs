@@ -274,9 +274,8 @@ impl Estimator {
             t,
             rank: rank(kind),
             source: s.source.clone(),
-            seq: self.seq,
+            seq: self.next_seq(),
         };
-        self.seq += 1;
         // Older than every snapshot: too old, unless the first is of the empty filter
         // (start-up: a slower source's first sample is older than the IMU's first).
         let too_old = self.barrier.is_some_and(|b| t < b)
@@ -326,16 +325,12 @@ impl Estimator {
                 self.imu_down.add(&s.source, t, imu, period_us, &mut passed);
                 let mut fused_to = None;
                 for (i, (t, imu)) in passed.drain(..).enumerate() {
-                    let key = Key { t, ..key.clone() };
-                    // Each its own place in the order: a second one is a new entry.
-                    let key = if i == 0 {
-                        key
-                    } else {
-                        self.seq += 1;
-                        Key {
-                            seq: self.seq - 1,
-                            ..key
-                        }
+                    // A second one (what waited, then this sample) is an entry of its own.
+                    let seq = if i == 0 { key.seq } else { self.next_seq() };
+                    let key = Key {
+                        t,
+                        seq,
+                        ..key.clone()
                     };
                     fused_to = fused_to.max(self.insert(key, SensorData::Imu(imu), usable));
                 }
@@ -393,6 +388,12 @@ impl Estimator {
         out
     }
 
+    /// The next sample's place among equal times.
+    fn next_seq(&mut self) -> u64 {
+        self.seq += 1;
+        self.seq - 1
+    }
+
     /// Puts the IMU samples the down-sampler still holds into the log.
     fn pass_waiting_imu(&mut self) {
         for (source, t, imu) in self.imu_down.take_all() {
@@ -400,9 +401,8 @@ impl Estimator {
                 t,
                 rank: rank(SensorKind::Imu),
                 source,
-                seq: self.seq,
+                seq: self.next_seq(),
             };
-            self.seq += 1;
             // Already fused past it (a command cleared the history): it is too old.
             if self.barrier.is_some_and(|b| t < b) {
                 continue;

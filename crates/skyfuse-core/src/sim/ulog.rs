@@ -81,7 +81,7 @@ pub struct UlogSummary {
 /// Writes ULog messages to `out`.
 pub struct UlogWriter<W: Write> {
     out: W,
-    /// Message id per topic, in the order of [`TOPICS`], once subscribed.
+    /// The data message being encoded (reused).
     buf: Vec<u8>,
     summary: UlogSummary,
 }
@@ -141,14 +141,13 @@ impl<W: Write> UlogWriter<W> {
         let t = t_us + BOOT_OFFSET_US;
         let mut b = std::mem::take(&mut self.buf);
         b.clear();
+        // The message id (the topic's index in TOPICS) goes first, once it is known.
+        b.extend_from_slice(&[0, 0]);
         let id: u16 = match data {
             SensorData::Imu(imu) => {
                 let (Some(g), Some(a)) = (imu.gyro, imu.accel) else {
-                    self.summary.skipped += 1;
-                    self.buf = b;
-                    return Ok(());
+                    return self.skip(b);
                 };
-                put_u16(&mut b, 0);
                 put_u64(&mut b, t);
                 put_v3(&mut b, frames::frd_to_flu(g));
                 put_u32(&mut b, 1000);
@@ -159,7 +158,6 @@ impl<W: Write> UlogWriter<W> {
                 0
             }
             SensorData::Attitude(att) => {
-                put_u16(&mut b, 1);
                 put_u64(&mut b, t);
                 put_u64(&mut b, t);
                 put_q(&mut b, frames::q_ned_frd_to_enu_flu(att.orientation));
@@ -170,7 +168,6 @@ impl<W: Write> UlogWriter<W> {
             SensorData::Odometry(o) => {
                 // The same 180° rotations take ENU/FLU back to NED/FRD.
                 let q = frames::q_ned_frd_to_enu_flu(o.orientation);
-                put_u16(&mut b, 2);
                 put_u64(&mut b, t);
                 put_u64(&mut b, t);
                 put_v3(&mut b, frames::ned_to_enu(o.position));
@@ -198,11 +195,8 @@ impl<W: Write> UlogWriter<W> {
             }
             SensorData::Flow(f) => {
                 let (Some(rate), Some(dt)) = (f.rate, f.integration_s) else {
-                    self.summary.skipped += 1;
-                    self.buf = b;
-                    return Ok(());
+                    return self.skip(b);
                 };
-                put_u16(&mut b, 3);
                 put_u64(&mut b, t);
                 put_u64(&mut b, t);
                 put_u32(&mut b, 0);
@@ -217,7 +211,6 @@ impl<W: Write> UlogWriter<W> {
                 3
             }
             SensorData::Range(r) => {
-                put_u16(&mut b, 4);
                 put_u64(&mut b, t);
                 put_u32(&mut b, 0);
                 put_f32s(
@@ -246,7 +239,6 @@ impl<W: Write> UlogWriter<W> {
                 4
             }
             SensorData::Gnss(g) => {
-                put_u16(&mut b, 5);
                 put_u64(&mut b, t);
                 put_u64(&mut b, t);
                 for v in [g.lat_deg, g.lon_deg, g.alt_m] {
@@ -274,17 +266,20 @@ impl<W: Write> UlogWriter<W> {
                 );
                 5
             }
-            _ => {
-                self.summary.skipped += 1;
-                self.buf = b;
-                return Ok(());
-            }
+            _ => return self.skip(b),
         };
-        debug_assert_eq!(u16::from_le_bytes([b[0], b[1]]), id);
+        b[..2].copy_from_slice(&id.to_le_bytes());
         let r = self.message(b'D', &b);
         self.buf = b;
         self.summary.messages += 1;
         r
+    }
+
+    /// A sample with no topic here: counted, nothing written.
+    fn skip(&mut self, buf: Vec<u8>) -> io::Result<()> {
+        self.summary.skipped += 1;
+        self.buf = buf;
+        Ok(())
     }
 
     /// Flushes and returns what was written.
@@ -318,10 +313,6 @@ pub fn with_imu_rate(base: &[StreamSpec], imu_hz: f64) -> Vec<StreamSpec> {
             _ => *s,
         })
         .collect()
-}
-
-fn put_u16(b: &mut Vec<u8>, v: u16) {
-    b.extend_from_slice(&v.to_le_bytes());
 }
 
 fn put_u32(b: &mut Vec<u8>, v: u32) {
