@@ -265,16 +265,7 @@ fn estimator_bench() {
 /// The demo flight with its IMU at 1 kHz (a flight controller's full rate): the IMU is
 /// then three quarters of the samples, so this prices what a high-rate log costs.
 fn imu_1khz_bench() {
-    let streams: Vec<StreamSpec> = DEMO_STREAMS
-        .iter()
-        .map(|s| match s.kind {
-            SensorKind::Imu => StreamSpec {
-                rate_hz: 1000.0,
-                ..*s
-            },
-            _ => *s,
-        })
-        .collect();
+    let streams = skyfuse::sim::ulog::with_imu_rate(DEMO_STREAMS, 1000.0);
     let samples = sim_samples_of(&streams, 140.0);
     let (fusing, _) = cost_per_kind_of(
         &streams,

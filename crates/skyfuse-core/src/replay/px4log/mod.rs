@@ -78,6 +78,18 @@ pub struct TopicSummary {
 }
 
 impl TopicSummary {
+    /// Nothing read yet of `tf`.
+    fn of(tf: &TopicFile) -> Self {
+        Self {
+            name: tf.name.clone(),
+            source: tf.source.clone(),
+            rows: 0,
+            skipped: 0,
+            first_error: None,
+            span_us: None,
+        }
+    }
+
     /// Samples this file produced.
     pub fn samples(&self) -> usize {
         self.rows - self.skipped
@@ -195,7 +207,7 @@ fn read_topics(
         })
         .sum();
     let mut samples = Vec::with_capacity(rows);
-    let topics = match read_ulog_merged(&files, &mut samples, &mut prog)? {
+    let topics = match read_ulog_merged(&files, &mut samples, &mut prog, true)? {
         Some(topics) => topics,
         None => {
             let mut topics = Vec::with_capacity(files.len());
@@ -711,11 +723,13 @@ impl Progress<'_> {
 /// then sorting moved each (they are large) across memory again (a fifth of an hour-long
 /// log's replay). The order is the stable sort's: at equal times, the file order (the
 /// TOPICS order, then instance), then row order. None (nothing read) when a file is
-/// not a ULog topic or a topic's times go back: the caller sorts instead.
+/// not a ULog topic, or when `in_order` and a topic's times go back: the caller sorts
+/// instead. Without `in_order`, a single topic is read in its rows' order.
 fn read_ulog_merged(
     files: &[TopicFile],
     samples: &mut Vec<Sample>,
     prog: &mut Progress<'_>,
+    in_order: bool,
 ) -> Result<Option<Vec<TopicSummary>>, Px4LogError> {
     struct Cursor<'a> {
         tf: &'a TopicFile,
@@ -748,7 +762,7 @@ fn read_ulog_merged(
                 last
             })
             .collect();
-        if keys.windows(2).any(|w| w[1] < w[0]) {
+        if in_order && keys.windows(2).any(|w| w[1] < w[0]) {
             return Ok(None);
         }
         cursors.push(Cursor {
@@ -759,14 +773,7 @@ fn read_ulog_merged(
             keys,
             row: 0,
             source: Arc::from(tf.source.as_str()),
-            summary: TopicSummary {
-                name: tf.name.clone(),
-                source: tf.source.clone(),
-                rows: 0,
-                skipped: 0,
-                first_error: None,
-                span_us: None,
-            },
+            summary: TopicSummary::of(tf),
         });
     }
     let mut values = Vec::new();
@@ -847,34 +854,14 @@ fn read_topic(
     samples: &mut Vec<Sample>,
     prog: &mut Progress<'_>,
 ) -> Result<TopicSummary, Px4LogError> {
-    let mut summary = TopicSummary {
-        name: tf.name.clone(),
-        source: tf.source.clone(),
-        rows: 0,
-        skipped: 0,
-        first_error: None,
-        span_us: None,
-    };
+    let mut summary = TopicSummary::of(tf);
     let source: Arc<str> = Arc::from(tf.source.as_str());
     let file = tf.path.as_path();
     match &tf.data {
-        TopicData::Ulog { header, columns } => {
-            let mapper = Mapper::new(tf.kind, file, header)?;
-            let rows = columns.first().map_or(0, Vec::len);
-            let mut values = vec![0.0; columns.len()];
-            for i in 0..rows {
-                for (v, c) in values.iter_mut().zip(columns) {
-                    *v = c.get(i).copied().unwrap_or(f64::NAN);
-                }
-                let row = Row {
-                    file,
-                    line: i + 1,
-                    header,
-                    fields: Fields::Num(&values),
-                };
-                take_row(&mut summary, &source, mapper.map(&row), samples);
-                prog.advance(1);
-            }
+        TopicData::Ulog { .. } => {
+            // One topic: its rows in their order, whatever their times.
+            let read = read_ulog_merged(std::slice::from_ref(tf), samples, prog, false)?;
+            summary = read.into_iter().flatten().next().unwrap_or(summary);
         }
         TopicData::Csv { gzip, .. } => {
             let f = File::open(file).map_err(|source| Px4LogError::Open {
