@@ -203,7 +203,7 @@ impl Ekf {
         let s = Self::innovation_cov_of(h, &pht, r);
         let innovation: Vec<f64> = y.iter().copied().collect();
         let innovation_var: Vec<f64> = s.diagonal().iter().copied().collect();
-        let Some(chol) = s.clone().cholesky() else {
+        let Some(chol) = s.cholesky() else {
             return UpdateOutcome {
                 innovation,
                 innovation_var,
@@ -676,6 +676,8 @@ mod tests {
         let dense = &f * &p0 * f.transpose();
         let worst = (&ekf.p - &dense).abs().max();
         assert!(worst < 1e-12, "differs by {worst}");
+        // Symmetric to the bit, though only the changed states' block was symmetrised.
+        assert_eq!(ekf.p, ekf.p.transpose());
         assert!(
             p0.iter()
                 .zip(dense.iter())
