@@ -654,6 +654,55 @@ fn the_real_ulog_reads_directly() {
     assert!(e.is_err());
 }
 
+/// The real ULog cut short at many places and with bytes changed at random: every read
+/// ends in samples or an error that names the file, never a panic; a cut log keeps what
+/// came before the cut.
+#[test]
+fn a_damaged_ulog_is_read_as_far_as_it_goes_or_refused() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data/px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{e}"));
+    let whole = read_ulog_with_progress(&path, &mut |_, _| {})
+        .unwrap_or_else(|e| panic!("{e}"))
+        .samples
+        .len();
+    let dir = TempDir::new("damaged-ulog");
+    let file = dir.0.join("d.ulg");
+    let mut x: u64 = 0x2545_f491_4f6c_dd1d;
+    let mut next = move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    let (mut read, mut refused) = (0, 0);
+    for round in 0..120 {
+        let mut b = bytes.clone();
+        if round % 2 == 0 {
+            b.truncate((next() % bytes.len() as u64) as usize);
+        } else {
+            for _ in 0..1 + next() % 8 {
+                let at = (next() % b.len() as u64) as usize;
+                b[at] = next() as u8;
+            }
+        }
+        std::fs::write(&file, &b).unwrap_or_else(|e| panic!("{e}"));
+        match read_ulog_with_progress(&file, &mut |_, _| {}) {
+            Ok(log) => {
+                read += 1;
+                if round % 2 == 0 {
+                    assert!(log.samples.len() <= whole, "round {round}");
+                }
+            }
+            Err(e) => {
+                refused += 1;
+                assert!(e.to_string().contains("d.ulg"), "{e}");
+            }
+        }
+    }
+    assert!(read > 30 && refused > 0, "read {read}, refused {refused}");
+}
+
 #[test]
 fn a_directory_without_known_topics_says_what_it_looked_for() {
     let dir = TempDir::new("none");
