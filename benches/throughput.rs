@@ -155,11 +155,7 @@ fn inputs_of(streams: &[skyfuse::sim::sensors::StreamSpec]) -> skyfuse::fusion::
         .collect()
 }
 
-fn sim_samples(duration_s: f64) -> Vec<Sample> {
-    sim_samples_of(DEMO_STREAMS, duration_s)
-}
-
-fn sim_samples_of(streams: &[StreamSpec], duration_s: f64) -> Vec<Sample> {
+fn sim_samples(streams: &[StreamSpec], duration_s: f64) -> Vec<Sample> {
     Simulator::new(streams, 1, duration_s)
         .map(|e| Sample {
             source: streams[e.stream].input_id.into(),
@@ -191,11 +187,7 @@ fn fusion_order(samples: &[Sample], cfg: &EstimatorConfig) -> Vec<Sample> {
 }
 
 /// µs per sample by kind, median over `REPS` runs; and samples/s of the whole run.
-fn cost_per_kind(samples: &[Sample]) -> (BTreeMap<&'static str, Vec<f64>>, Vec<f64>) {
-    cost_per_kind_of(DEMO_STREAMS, samples)
-}
-
-fn cost_per_kind_of(
+fn cost_per_kind(
     streams: &[StreamSpec],
     samples: &[Sample],
 ) -> (BTreeMap<&'static str, Vec<f64>>, Vec<f64>) {
@@ -224,6 +216,44 @@ fn cost_per_kind_of(
     (per_kind, totals)
 }
 
+/// Per-kind cost over `SIM_SECONDS` of the demo flight on `streams`: fed in fusion order
+/// (*fusing it*) and as published (*on arrival*), with samples/s of the latter.
+struct FlightCosts {
+    samples: usize,
+    fusing: BTreeMap<&'static str, Vec<f64>>,
+    arrival: BTreeMap<&'static str, Vec<f64>>,
+    totals: Vec<f64>,
+}
+
+const SIM_SECONDS: f64 = 140.0;
+
+fn flight_costs(streams: &[StreamSpec]) -> FlightCosts {
+    let samples = sim_samples(streams, SIM_SECONDS);
+    let (fusing, _) = cost_per_kind(
+        streams,
+        &fusion_order(&samples, &EstimatorConfig::default()),
+    );
+    let (arrival, totals) = cost_per_kind(streams, &samples);
+    FlightCosts {
+        samples: samples.len(),
+        fusing,
+        arrival,
+        totals,
+    }
+}
+
+impl FlightCosts {
+    /// The whole flight as published: samples/s and its speed against real time.
+    fn print_as_published(self, what: &str) {
+        let (m, lo, hi) = median(self.totals);
+        println!(
+            "\n{what}: {} samples, {m:.0} samples/s ({lo:.0}–{hi:.0}), {:.0}× real time.\n",
+            self.samples,
+            m / (self.samples as f64 / SIM_SECONDS)
+        );
+    }
+}
+
 fn estimator_bench() {
     println!("## Estimator cost per sample (µs, `Fusion::process`: checks + estimator + health; median of {REPS} runs of 140 s of the demo flight)\n");
     println!("*Fusing it*: the samples fed in the order the filter fuses them, so each call fuses");
@@ -232,9 +262,7 @@ fn estimator_bench() {
     );
     println!("IMU of the same moment): a call fuses whatever its arrival moved past the horizon,");
     println!("so the IMU, the newest sample most of the time, carries the others' fusing.\n");
-    let samples = sim_samples(140.0);
-    let (fusing, _) = cost_per_kind(&fusion_order(&samples, &EstimatorConfig::default()));
-    let (arrival, totals) = cost_per_kind(&samples);
+    let costs = flight_costs(DEMO_STREAMS);
     println!("| sample kind (what fusing it does) | fusing it | spread | on arrival | spread |");
     println!("|---|---|---|---|---|");
     let what = |k: &str| match k {
@@ -246,45 +274,33 @@ fn estimator_bench() {
         "range" => "range (height update)",
         _ => "other",
     };
-    for (k, v) in fusing {
-        let (m, lo, hi) = median(v);
-        let (am, alo, ahi) = arrival.get(k).cloned().map_or((0.0, 0.0, 0.0), median);
+    for (k, v) in &costs.fusing {
+        let (m, lo, hi) = median(v.clone());
+        let (am, alo, ahi) = costs
+            .arrival
+            .get(k)
+            .cloned()
+            .map_or((0.0, 0.0, 0.0), median);
         println!(
             "| {} | {m:.2} | {lo:.2}–{hi:.2} | {am:.2} | {alo:.2}–{ahi:.2} |",
             what(k)
         );
     }
-    let (m, lo, hi) = median(totals);
-    println!(
-        "\nWhole simulated flight as published: {} samples, {m:.0} samples/s ({lo:.0}–{hi:.0}), {:.0}× real time.\n",
-        samples.len(),
-        m / (samples.len() as f64 / 140.0)
-    );
+    costs.print_as_published("Whole simulated flight as published");
 }
 
 /// The demo flight with its IMU at 1 kHz (a flight controller's full rate): the IMU is
 /// then three quarters of the samples, so this prices what a high-rate log costs.
 fn imu_1khz_bench() {
-    let streams = skyfuse::sim::ulog::with_imu_rate(DEMO_STREAMS, 1000.0);
-    let samples = sim_samples_of(&streams, 140.0);
-    let (fusing, _) = cost_per_kind_of(
-        &streams,
-        &fusion_order(&samples, &EstimatorConfig::default()),
-    );
-    let (_, totals) = cost_per_kind_of(&streams, &samples);
+    let costs = flight_costs(&skyfuse::sim::sensors::with_imu_rate(DEMO_STREAMS, 1000.0));
     println!("## The demo flight with a 1 kHz IMU (µs per sample, fusing it; median of {REPS})\n");
     println!("| sample kind | fusing it | spread |");
     println!("|---|---|---|");
-    for (k, v) in fusing {
-        let (m, lo, hi) = median(v);
+    for (k, v) in &costs.fusing {
+        let (m, lo, hi) = median(v.clone());
         println!("| {k} | {m:.2} | {lo:.2}–{hi:.2} |");
     }
-    let (m, lo, hi) = median(totals);
-    println!(
-        "\nAs published: {} samples, {m:.0} samples/s ({lo:.0}–{hi:.0}), {:.0}× real time.\n",
-        samples.len(),
-        m / (samples.len() as f64 / 140.0)
-    );
+    costs.print_as_published("As published");
 }
 
 /// `skyfuse replay` of a simulated PX4 ULog with a 1 kHz IMU, the whole command as a

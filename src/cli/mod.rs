@@ -6,7 +6,6 @@ use crate::config::{Config, ZenohConfig, ZenohMode};
 use crate::estimator::Mode;
 use crate::ingest::zenoh_in;
 use crate::offline;
-use crate::sim::faults::FaultSchedule;
 use crate::sim::{publish, scenario, sensors::DEMO_STREAMS, Simulator};
 use clap::{Args, Parser, Subcommand};
 use std::path::PathBuf;
@@ -493,23 +492,16 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             home,
             duration,
             scenario,
+            imu_hz,
             ..
         } => {
-            let scn = scenario::scenario(&scenario)
-                .ok_or_else(|| format!("unknown scenario {scenario:?} (see --list)"))?;
+            let scn = scenario_at(&scenario, imu_hz)?;
             let c = load(config.as_deref(), &net)?;
             let mut shutdown = Box::pin(app::shutdown_signal());
             let Some(session) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
                 return Ok(());
             };
-            let sensors = scn.streams.iter().map(|s| s.input_id.to_string()).collect();
-            let mut sim = Simulator::with_profile(
-                &scn.streams,
-                seed,
-                duration.unwrap_or(f64::INFINITY),
-                scn.profile,
-                Arc::new(FaultSchedule::new(sensors, scn.faults.clone())),
-            );
+            let mut sim = scn.simulator(seed, duration.unwrap_or(f64::INFINITY));
             if let Some((lat, lon, alt)) = home {
                 sim.set_home(lat, lon, alt);
             }
@@ -718,7 +710,7 @@ fn random_token() -> String {
 }
 
 mod runs;
-use runs::{offline_sims, parse_window, replay, sim_ulog};
+use runs::{offline_sims, parse_window, replay, scenario_at, sim_ulog};
 
 #[cfg(test)]
 mod tests {

@@ -86,6 +86,16 @@ fn checked_imu_hz(hz: f64) -> Result<f64, String> {
     }
 }
 
+/// The scenario `name`, with its IMU at `imu_hz` if given.
+pub(super) fn scenario_at(name: &str, imu_hz: Option<f64>) -> Result<scenario::Scenario, String> {
+    let mut scn = scenario::scenario(name)
+        .ok_or_else(|| format!("unknown scenario {name:?} (see --list)"))?;
+    if let Some(hz) = imu_hz.map(checked_imu_hz).transpose()? {
+        scn.streams = crate::sim::sensors::with_imu_rate(&scn.streams, hz);
+    }
+    Ok(scn)
+}
+
 /// `skyfuse sim --ulog FILE`: one scenario's sensor samples as a PX4 ULog.
 pub(super) fn sim_ulog(
     scenario_name: &str,
@@ -94,15 +104,9 @@ pub(super) fn sim_ulog(
     imu_hz: Option<f64>,
     file: &std::path::Path,
 ) -> Result<(), String> {
-    let mut scn = scenario::scenario(scenario_name)
-        .ok_or_else(|| format!("unknown scenario {scenario_name:?} (see --list)"))?;
-    if let Some(hz) = imu_hz.map(checked_imu_hz).transpose()? {
-        scn.streams = crate::sim::ulog::with_imu_rate(&scn.streams, hz);
-    }
+    let scn = scenario_at(scenario_name, imu_hz)?;
     let duration = duration.unwrap_or(scenario::DEFAULT_DURATION_S);
-    let sensors = scn.streams.iter().map(|s| s.input_id.to_string()).collect();
-    let faults = std::sync::Arc::new(FaultSchedule::new(sensors, scn.faults.clone()));
-    let sim = Simulator::with_profile(&scn.streams, seed, duration, scn.profile, faults);
+    let sim = scn.simulator(seed, duration);
     let out = std::fs::File::create(file)
         .map_err(|e| format!("cannot create {}: {e}", file.display()))?;
     let mut bar = Progress::new("writing  ");
@@ -128,7 +132,6 @@ pub(super) fn offline_sims(
     imu_hz: Option<f64>,
     out: &std::path::Path,
 ) -> Result<(), String> {
-    let imu_hz = imu_hz.map(checked_imu_hz).transpose()?;
     let names: Vec<&str> = if scenario_name == "all" {
         scenario::NAMES.iter().map(|(n, _)| *n).collect()
     } else {
@@ -143,11 +146,7 @@ pub(super) fn offline_sims(
     // scenario -> (source scores from the first mode, fused score per mode)
     let mut table: Vec<ScenarioRow> = Vec::new();
     for name in &names {
-        let mut scn = scenario::scenario(name)
-            .ok_or_else(|| format!("unknown scenario {name:?} (see --list)"))?;
-        if let Some(hz) = imu_hz {
-            scn.streams = crate::sim::ulog::with_imu_rate(&scn.streams, hz);
-        }
+        let scn = scenario_at(name, imu_hz)?;
         let mut sources = Vec::new();
         let mut fused = Vec::new();
         for m in &modes {

@@ -12,16 +12,13 @@ use crate::fusion::{Fusion, InputList, InputSpec};
 use crate::geo::LocalEnu;
 use crate::health::HealthConfig;
 use crate::sample::{GnssFixType, Sample, SensorData, SensorKind};
-use crate::sim::faults::FaultSchedule;
 use crate::sim::scenario::Scenario;
 use crate::sim::truth::truth_of;
-use crate::sim::Simulator;
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use thiserror::Error;
 
 /// Fused poses are written at most this often (sample time), µs: 50 Hz.
@@ -515,9 +512,7 @@ pub fn run_scenario(
     out: &Path,
     progress: &mut dyn FnMut(f64),
 ) -> Result<Summary, OfflineError> {
-    let sensors = scn.streams.iter().map(|s| s.input_id.to_string()).collect();
-    let faults = Arc::new(FaultSchedule::new(sensors, scn.faults.clone()));
-    let sim = Simulator::with_profile(&scn.streams, seed, duration_s, scn.profile, faults);
+    let sim = scn.simulator(seed, duration_s);
     let mode = cfg.mode;
     let inputs: InputList = scn
         .streams

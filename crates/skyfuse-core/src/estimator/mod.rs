@@ -397,16 +397,16 @@ impl Estimator {
     /// Puts the IMU samples the down-sampler still holds into the log.
     fn pass_waiting_imu(&mut self) {
         for (source, t, imu) in self.imu_down.take_all() {
+            // Already fused past it (a command cleared the history): it is too old.
+            if self.barrier.is_some_and(|b| t < b) {
+                continue;
+            }
             let key = Key {
                 t,
                 rank: rank(SensorKind::Imu),
                 source,
                 seq: self.next_seq(),
             };
-            // Already fused past it (a command cleared the history): it is too old.
-            if self.barrier.is_some_and(|b| t < b) {
-                continue;
-            }
             self.insert(key, SensorData::Imu(imu), true);
         }
     }

@@ -274,7 +274,7 @@ fn sim_ekf_nees_is_consistent() {
 /// close to the truth.
 #[test]
 fn a_1_khz_imu_is_down_sampled_without_losing_the_present() {
-    let streams = crate::sim::ulog::with_imu_rate(DEMO_STREAMS, 1000.0);
+    let streams = crate::sim::sensors::with_imu_rate(DEMO_STREAMS, 1000.0);
     let (samples, sim_origin) = sim_samples_of(&streams, 3, 40.0);
     let every = EstimatorConfig {
         predict_period_ms: 0.0,

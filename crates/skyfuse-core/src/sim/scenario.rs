@@ -1,9 +1,11 @@
 //! Named simulated flights for offline runs and tests: a flight profile, the streams
 //! that exist, and the faults injected on a schedule.
 
-use super::faults::{Fault, FaultKind};
+use super::faults::{Fault, FaultKind, FaultSchedule};
 use super::sensors::{StreamSpec, DEMO_STREAMS};
 use super::truth::{Profile, LOOP_S};
+use super::Simulator;
+use std::sync::Arc;
 
 /// One named scenario.
 #[derive(Debug, Clone)]
@@ -13,6 +15,19 @@ pub struct Scenario {
     pub profile: Profile,
     pub streams: Vec<StreamSpec>,
     pub faults: Vec<Fault>,
+}
+
+impl Scenario {
+    /// Its flight for `duration_s`, with its faults on their schedule.
+    pub fn simulator(&self, seed: u64, duration_s: f64) -> Simulator {
+        let sensors = self
+            .streams
+            .iter()
+            .map(|s| s.input_id.to_string())
+            .collect();
+        let faults = Arc::new(FaultSchedule::new(sensors, self.faults.clone()));
+        Simulator::with_profile(&self.streams, seed, duration_s, self.profile, faults)
+    }
 }
 
 /// Default length of a scenario: one loop of the flight, s.

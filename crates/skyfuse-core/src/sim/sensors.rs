@@ -67,6 +67,19 @@ pub const DEMO_STREAMS: &[StreamSpec] = &[
     },
 ];
 
+/// The streams of `base` with the IMU at `imu_hz`.
+pub fn with_imu_rate(base: &[StreamSpec], imu_hz: f64) -> Vec<StreamSpec> {
+    base.iter()
+        .map(|s| match s.kind {
+            SensorKind::Imu => StreamSpec {
+                rate_hz: imu_hz,
+                ..*s
+            },
+            _ => *s,
+        })
+        .collect()
+}
+
 // Noise and error magnitudes, typical of a hobby-grade IMU, a T265, a PMW3901-class
 // flow sensor with a VL53-class ToF, a u-blox M8 and a TFmini-class range finder.
 const GYRO_NOISE: f64 = 0.003;

@@ -8,7 +8,6 @@
 //! integrals over the integration time, `timestamp` = the measurement time (µs since
 //! boot; the simulator's start is at [`BOOT_OFFSET_US`]).
 
-use super::sensors::StreamSpec;
 use super::SimEvent;
 use crate::sample::{frames, GnssFixType, SensorData};
 use nalgebra::{UnitQuaternion, Vector3};
@@ -143,7 +142,7 @@ impl<W: Write> UlogWriter<W> {
         b.clear();
         // The message id (the topic's index in TOPICS) goes first, once it is known.
         b.extend_from_slice(&[0, 0]);
-        let id: u16 = match data {
+        let topic = match data {
             SensorData::Imu(imu) => {
                 let (Some(g), Some(a)) = (imu.gyro, imu.accel) else {
                     return self.skip(b);
@@ -155,7 +154,7 @@ impl<W: Write> UlogWriter<W> {
                 put_v3(&mut b, frames::frd_to_flu(a));
                 put_u32(&mut b, 1000);
                 b.extend_from_slice(&[0, 0, 1, 1]);
-                0
+                &SENSOR_COMBINED
             }
             SensorData::Attitude(att) => {
                 put_u64(&mut b, t);
@@ -163,7 +162,7 @@ impl<W: Write> UlogWriter<W> {
                 put_q(&mut b, frames::q_ned_frd_to_enu_flu(att.orientation));
                 put_f32s(&mut b, &[1.0, 0.0, 0.0, 0.0]);
                 b.push(0);
-                1
+                &VEHICLE_ATTITUDE
             }
             SensorData::Odometry(o) => {
                 // The same 180° rotations take ENU/FLU back to NED/FRD.
@@ -191,7 +190,7 @@ impl<W: Write> UlogWriter<W> {
                     o.reset_counter.unwrap_or(0),
                 ]);
                 b.push(o.quality.unwrap_or(100) as u8);
-                2
+                &VEHICLE_ODOMETRY
             }
             SensorData::Flow(f) => {
                 let (Some(rate), Some(dt)) = (f.rate, f.integration_s) else {
@@ -208,7 +207,7 @@ impl<W: Write> UlogWriter<W> {
                 put_u32(&mut b, (dt * 1e6).round() as u32);
                 b.push(f.quality);
                 put_f32s(&mut b, &[8.0, 0.08, 4.0]);
-                3
+                &VEHICLE_OPTICAL_FLOW
             }
             SensorData::Range(r) => {
                 put_u64(&mut b, t);
@@ -236,7 +235,7 @@ impl<W: Write> UlogWriter<W> {
                 b.push(quality as u8);
                 b.push(0); // MAV_DISTANCE_SENSOR_LASER
                 b.push(r.orientation.unwrap_or(25));
-                4
+                &DISTANCE_SENSOR
             }
             SensorData::Gnss(g) => {
                 put_u64(&mut b, t);
@@ -264,10 +263,14 @@ impl<W: Write> UlogWriter<W> {
                     &mut b,
                     &[g.hdop.unwrap_or(f64::NAN), g.vdop.unwrap_or(f64::NAN)],
                 );
-                5
+                &SENSOR_GPS
             }
             _ => return self.skip(b),
         };
+        let id = TOPICS
+            .iter()
+            .position(|t| t.name == topic.name)
+            .expect("every topic written is in TOPICS") as u16;
         b[..2].copy_from_slice(&id.to_le_bytes());
         let r = self.message(b'D', &b);
         self.buf = b;
@@ -302,19 +305,6 @@ pub fn write_flight(
     w.finish()
 }
 
-/// The streams of `base` with the IMU at `imu_hz`.
-pub fn with_imu_rate(base: &[StreamSpec], imu_hz: f64) -> Vec<StreamSpec> {
-    base.iter()
-        .map(|s| match s.kind {
-            crate::sample::SensorKind::Imu => StreamSpec {
-                rate_hz: imu_hz,
-                ..*s
-            },
-            _ => *s,
-        })
-        .collect()
-}
-
 fn put_u32(b: &mut Vec<u8>, v: u32) {
     b.extend_from_slice(&v.to_le_bytes());
 }
@@ -343,7 +333,7 @@ mod tests {
     use super::*;
     use crate::replay::px4log;
     use crate::sample::SensorKind;
-    use crate::sim::sensors::DEMO_STREAMS;
+    use crate::sim::sensors::{with_imu_rate, DEMO_STREAMS};
     use crate::sim::Simulator;
 
     /// A topic whose times go back (a log of out-of-order publications) is read whole

@@ -199,14 +199,7 @@ fn read_topics(
     };
     // A ULog's rows are counted: room for them all at once, not regrown (and copied)
     // as they come.
-    let rows: usize = files
-        .iter()
-        .map(|f| match &f.data {
-            TopicData::Ulog { columns, .. } => columns.first().map_or(0, Vec::len),
-            TopicData::Csv { .. } => 0,
-        })
-        .sum();
-    let mut samples = Vec::with_capacity(rows);
+    let mut samples = Vec::with_capacity(files.iter().map(TopicFile::ulog_rows).sum());
     let topics = match read_ulog_merged(&files, &mut samples, &mut prog, true)? {
         Some(topics) => topics,
         None => {
@@ -486,7 +479,15 @@ impl TopicFile {
     fn weight(&self) -> u64 {
         match &self.data {
             TopicData::Csv { bytes, .. } => *bytes,
-            TopicData::Ulog { columns, .. } => columns.first().map_or(0, |c| c.len() as u64),
+            TopicData::Ulog { .. } => self.ulog_rows() as u64,
+        }
+    }
+
+    /// A ULog topic's rows (0 for a CSV file: not counted before it is read).
+    fn ulog_rows(&self) -> usize {
+        match &self.data {
+            TopicData::Ulog { columns, .. } => columns.first().map_or(0, Vec::len),
+            TopicData::Csv { .. } => 0,
         }
     }
 }
