@@ -148,6 +148,42 @@ fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
 }
 
 #[test]
+fn real_px4_flight_fusing_its_camera_too_stays_valid_in_the_air() {
+    // Every source the log has, the tracking camera among them, as a vehicle with a
+    // T265 and two flow sensors would fuse them. At take-off (209-211 s) the camera
+    // and both flow sensors disagree with the settling estimate now and then; the
+    // filter gates those samples one by one. Taking the flow sensors out for their
+    // recovery time on that (once, a look at the health tick saw a rejected sample)
+    // left nothing to aid the estimate: invalid for 6 s in flight.
+    let log = skyfuse::replay::px4log::read_dir(Path::new(PX4_FLOW_VIO)).expect("PX4 CSV");
+    let opts = ReplayOptions {
+        fuse: None,
+        reference: "vio".into(),
+        window: None,
+        t0_us: None,
+    };
+    let out = tmp("px4-all");
+    let s = run_replay(
+        "px4-flow-vio-7c824ee5",
+        &log.samples,
+        EstimatorConfig::default(),
+        HealthConfig::default(),
+        &opts,
+        &out,
+        &mut |_| {},
+    )
+    .expect("replay");
+    let a = &s.availability;
+    println!("every source fused: {a:?}");
+    assert!(a.airborne_valid_fraction.is_some_and(|f| f > 0.99), "{a:?}");
+    assert!(
+        a.airborne_longest_invalid_s.is_some_and(|g| g < 1.0),
+        "{a:?}"
+    );
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
 fn on_every_scenario_the_fused_track_beats_the_best_single_source() {
     let mut table = vec![];
     let mut losers = vec![];

@@ -133,9 +133,31 @@ pub struct SourceStatus {
     pub test_ratio: f64,
     pub accepted: u64,
     pub rejected: u64,
+    /// Samples whose innovation was tested (fused, or probed while not fused), and of
+    /// those the ones over the gate: a sample's several updates count once.
+    pub tested: u64,
+    pub tested_over_gate: u64,
+    /// The latest tested sample is already counted over the gate.
+    #[serde(skip)]
+    latest_over_gate: bool,
     pub last_reject_reason: Option<String>,
     pub usable: bool,
     pub segment: Option<u32>,
+}
+
+impl SourceStatus {
+    /// Count one gate test: the first of a new sample, or another of the same one.
+    pub(super) fn count_test(&mut self, same_sample: bool, test_ratio: f64) {
+        if !same_sample {
+            self.tested += 1;
+            self.latest_over_gate = false;
+        }
+        // NaN counts as over: a ratio that cannot be computed is no agreement.
+        if (test_ratio.is_nan() || test_ratio > 1.0) && !self.latest_over_gate {
+            self.tested_over_gate += 1;
+            self.latest_over_gate = true;
+        }
+    }
 }
 
 #[derive(Clone, Debug, Serialize)]

@@ -1055,3 +1055,18 @@ fn a_re_run_fuses_at_least_as_far_as_before() {
         "fused to {after} after the re-run, {before} before"
     );
 }
+
+#[test]
+fn a_samples_gate_tests_count_once_and_over_the_gate_once() {
+    let mut s = SourceStatus::default();
+    // A T265 sample: position accepted, body velocity over the gate.
+    s.count_test(false, 0.4);
+    s.count_test(true, 3.0);
+    // A second sample: both updates over the gate.
+    s.count_test(false, 2.0);
+    s.count_test(true, 5.0);
+    // A third, accepted; a fourth whose ratio is not a number.
+    s.count_test(false, 0.2);
+    s.count_test(false, f64::NAN);
+    assert_eq!((s.tested, s.tested_over_gate), (4, 3));
+}

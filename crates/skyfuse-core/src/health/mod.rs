@@ -206,6 +206,9 @@ pub struct SensorHealth {
     pub disabled: bool,
     /// Innovation test ratio low-passed (warnings on single spikes would flap).
     pub test_ratio_lp: Option<(i64, f64)>,
+    /// The estimator's counts of tested samples and of those over the gate at the
+    /// last look.
+    tests_seen: Option<(u64, u64)>,
 }
 
 /// Time constant of the low-passed test ratio that raises warnings, s.
@@ -418,13 +421,25 @@ impl HealthMonitor {
                 None => src.test_ratio,
             };
             h.test_ratio_lp = Some((t, lp));
-            if src.test_ratio > cfg.test_ratio_fail {
+            // Rejected means most of the samples tested since the last look were over
+            // the gate, not the latest one alone: a look sees a single sample, and a
+            // source that mostly agrees (two flow sensors at take-off, while the
+            // estimate settles) is the filter's to gate sample by sample. Taken out,
+            // it could leave nothing to aid the estimate.
+            let (tested, over) = match h.tests_seen.replace((src.tested, src.tested_over_gate)) {
+                Some((n, o)) => (
+                    src.tested.saturating_sub(n),
+                    src.tested_over_gate.saturating_sub(o),
+                ),
+                None => (src.tested, src.tested_over_gate),
+            };
+            if src.test_ratio > cfg.test_ratio_fail && 2 * over > tested {
                 h.raise(
                     Observation {
                         code: "innovation_rejected",
                         state: HealthState::Failed,
                         text: format!(
-                            "innovation test ratio {:.2} > {:.1}: disagrees with the other sources",
+                            "innovation test ratio {:.2} > {:.1} ({over} of {tested} samples over the gate): disagrees with the other sources",
                             src.test_ratio, cfg.test_ratio_fail
                         ),
                     },
@@ -525,6 +540,7 @@ impl SensorHealth {
             checks: Default::default(),
             disabled,
             test_ratio_lp: None,
+            tests_seen: None,
         }
     }
 

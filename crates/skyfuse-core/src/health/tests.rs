@@ -263,3 +263,42 @@ fn a_lone_bad_sample_does_not_take_a_sensor_out() {
         "{tr:?}"
     );
 }
+
+#[test]
+fn a_source_is_failed_by_its_innovations_only_when_most_samples_are_over_the_gate() {
+    // Each look (10 Hz) sees the latest test ratio over the gate. With one sample in
+    // five over it (two flow sensors at take-off, while the estimate settles) the
+    // source stays usable; with four in five it is failed, the estimator disagreeing
+    // with it throughout.
+    let mut m = monitor();
+    let mut status = crate::estimator::Estimator::new(Default::default()).state_summary();
+    let mut src = crate::estimator::SourceStatus::default();
+    src.innovation = vec![0.3, 0.3];
+    src.test_ratio = 2.0;
+    let mut look = |m: &mut HealthMonitor, t_ms: i64, over: u64| {
+        m.on_sample(&flow(200, 1.0), t_ms * 1000);
+        src.tested += 5;
+        src.tested_over_gate += over;
+        src.last_time_us = Some(t_ms * 1000);
+        status.sources.insert("flow".into(), src.clone());
+        m.on_estimator(&status, t_ms * 1000);
+        m.evaluate(t_ms * 1000)
+            .into_iter()
+            .filter(|tr| tr.sensor == "flow" && tr.to == HealthState::Failed)
+            .count()
+    };
+    let failed: usize = (0..30).map(|i| look(&mut m, i * 100, 1)).sum();
+    assert_eq!(failed, 0);
+    assert!(m.usable("flow"));
+    let failed: usize = (30..40).map(|i| look(&mut m, i * 100, 4)).sum();
+    assert_eq!(failed, 1);
+    assert!(!m.usable("flow"));
+    let s = m.sensor("flow").expect("flow");
+    assert!(
+        s.reasons
+            .iter()
+            .any(|r| r.code == "innovation_rejected" && r.text.contains("4 of 5 samples")),
+        "{:?}",
+        s.reasons
+    );
+}
