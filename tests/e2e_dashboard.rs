@@ -18,10 +18,11 @@ fn the_page_draws_live_data_and_an_injected_fault_reaches_the_log_and_its_tile()
     let svc = Service::start(&["demo", "--no-browser"], &[]);
     // The README shows docs/dashboard.png: written only when asked
     // (SKYFUSE_SCREENSHOT=1), so a test run never rewrites a tracked file.
+    let scratch = TempDir::new("dashboard");
     let shot = if std::env::var_os("SKYFUSE_SCREENSHOT").is_some() {
         repo_root().join("docs/dashboard.png")
     } else {
-        std::env::temp_dir().join(format!("skyfuse-dashboard-{}.png", std::process::id()))
+        scratch.join("dashboard.png")
     };
     if let Some(dir) = shot.parent() {
         std::fs::create_dir_all(dir).expect("screenshot dir");
@@ -239,7 +240,7 @@ fn self_signed(dir: &std::path::Path, name: &str) -> (String, String) {
 
 #[test]
 fn https_serves_page_and_api_over_tls_only_and_the_healthcheck_asks_over_tls() {
-    let dir = std::env::temp_dir().join(format!("skyfuse-https-{}", std::process::id()));
+    let dir = TempDir::new("https");
     let (cert, key) = self_signed(&dir, "https");
     let env = [
         ("SKYFUSE__HTTP__TLS_CERT", cert.as_str()),

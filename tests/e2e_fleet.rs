@@ -118,11 +118,15 @@ fn three_vehicles_on_one_monitor_page_one_goes_grey_a_fourth_joins_and_a_restart
     let _d2 = vehicle(&monitor, 2);
     let mut d3 = vehicle(&monitor, 3);
     // README shows docs/fleet.png: written only when asked (SKYFUSE_SCREENSHOT=1).
+    let scratch = TempDir::new("fleet");
     let shot = if std::env::var_os("SKYFUSE_SCREENSHOT").is_some() {
         repo_root().join("docs/fleet.png")
     } else {
-        std::env::temp_dir().join(format!("skyfuse-fleet-{}.png", std::process::id()))
+        scratch.join("fleet.png")
     };
+    if let Some(dir) = shot.parent() {
+        std::fs::create_dir_all(dir).expect("screenshot dir");
+    }
     let url = format!("http://127.0.0.1:{}/fleet", monitor.http_port);
     let mut page = Page::open(
         &url,

@@ -14,7 +14,7 @@ fn count(s: &serde_json::Value, field: &str) -> u64 {
 
 #[test]
 fn every_format_is_counted_for_the_right_sensor_and_bad_input_is_rejected() {
-    let dir = std::env::temp_dir().join(format!("skyfuse-e2e-{}", free_port()));
+    let dir = TempDir::new("e2e");
     std::fs::create_dir_all(&dir).expect("dir");
     let cfg = dir.join("e2e.toml");
     let inputs = run_py("publish_inputs.py", &["--print-config"]);
@@ -102,7 +102,7 @@ fn every_format_is_counted_for_the_right_sensor_and_bad_input_is_rejected() {
 
 #[test]
 fn check_config_names_unknown_keys_and_missing_files() {
-    let dir = std::env::temp_dir().join(format!("skyfuse-cc-{}", free_port()));
+    let dir = TempDir::new("cc");
     std::fs::create_dir_all(&dir).expect("dir");
     let bad = dir.join("bad.toml");
     std::fs::write(&bad, "[zenoh]\nmode = \"peer\"\nlisten_on = []\n").expect("write");
@@ -263,7 +263,7 @@ fn zenoh_with_mutual_tls_and_access_control_lets_only_the_named_bridge_in() {
     // to skyfuse's health: the bridge's samples arrive; a certificate of the same CA with
     // another name is let in by TLS, sees the health, but its puts are denied; a
     // certificate of another CA, and plain TCP to the TLS port, get no session at all.
-    let dir = std::env::temp_dir().join(format!("skyfuse-tls-{}", std::process::id()));
+    let dir = TempDir::new("tls");
     let _ = std::fs::remove_dir_all(&dir);
     let zport = free_port();
     let setup = run_py(

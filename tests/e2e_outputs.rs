@@ -230,7 +230,7 @@ fn no_position_source_means_no_vision_position_estimate() {
 fn a_serial_link_absent_at_start_unplugged_and_plugged_back_carries_vpe() {
     // A pseudo-terminal pair stands in for a USB serial adapter (tests/py/pty_serial.py):
     // the path does not exist when skyfuse starts, appears, vanishes, comes back.
-    let dir = std::env::temp_dir().join(format!("skyfuse-pty-{}", std::process::id()));
+    let dir = TempDir::new("pty");
     std::fs::create_dir_all(&dir).expect("temp dir");
     let link = dir.join("ttyFC");
     let endpoint = format!("serial:{}:57600", link.display());

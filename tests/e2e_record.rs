@@ -6,15 +6,13 @@
 
 mod common;
 
-use common::{run_py, Service};
+use common::{run_py, Service, TempDir};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("skyfuse-rec-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+fn tmp(name: &str) -> TempDir {
+    TempDir::new(&format!("rec-{name}"))
 }
 
 /// The one `.mcap` file in `dir`.

@@ -179,7 +179,7 @@ fn jazzy_tokens_carry_the_rep_2011_type_hash_rosbags_computes() {
 
 #[test]
 fn auto_typed_inputs_decode_and_a_mismatched_type_is_reported_not_decoded() {
-    let dir = std::env::temp_dir().join(format!("skyfuse-rosgraph-{}", free_port()));
+    let dir = TempDir::new("rosgraph");
     std::fs::create_dir_all(&dir).expect("dir");
     let cfg = dir.join("auto.toml");
     std::fs::write(

@@ -3,21 +3,22 @@
 //! its camera, scored against the flight's visual odometry (which PX4 did not fuse)
 //! beside PX4 EKF2's own estimate, same metric and alignment.
 
+mod common;
+
+use common::TempDir;
 use skyfuse::estimator::EstimatorConfig;
 use skyfuse::health::HealthConfig;
 use skyfuse::offline::{run_replay, run_scenario, ReplayOptions};
 use skyfuse::sim::scenario::scenario;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const PX4_FLOW_VIO: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
     "/tests/data/px4-flow-vio-7c824ee5"
 );
 
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("skyfuse-offline-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+fn tmp(name: &str) -> TempDir {
+    TempDir::new(&format!("offline-{name}"))
 }
 
 fn same_files(a: &Path, b: &Path) {
@@ -180,7 +181,6 @@ fn real_px4_flight_fusing_its_camera_too_stays_valid_in_the_air() {
         a.airborne_longest_invalid_s.is_some_and(|g| g < 1.0),
         "{a:?}"
     );
-    let _ = std::fs::remove_dir_all(&out);
 }
 
 #[test]
@@ -188,7 +188,7 @@ fn on_every_scenario_the_fused_track_beats_the_best_single_source() {
     let mut table = vec![];
     let mut losers = vec![];
     for (name, _) in skyfuse::sim::scenario::NAMES {
-        let (out, s) = run_named(name);
+        let (_out, s) = run_named(name);
         let (fused, best) = s.fused_and_best_source();
         let fused = fused.unwrap_or_else(|| panic!("{name}: no fused score"));
         let (src, b) = best.unwrap_or_else(|| panic!("{name}: no source score"));
@@ -198,7 +198,6 @@ fn on_every_scenario_the_fused_track_beats_the_best_single_source() {
         if fused >= b {
             losers.push(name);
         }
-        let _ = std::fs::remove_dir_all(&out);
     }
     println!("{}", table.join("\n"));
     assert!(
@@ -221,7 +220,7 @@ fn read_tum(path: &Path) -> Vec<(f64, [f64; 3])> {
 }
 
 /// One loop of scenario `name`, seed 1, default config, into a scratch directory.
-fn run_named(name: &str) -> (PathBuf, skyfuse::offline::Summary) {
+fn run_named(name: &str) -> (TempDir, skyfuse::offline::Summary) {
     let scn = scenario(name).expect("scenario");
     let out = tmp(&format!("scn-{name}"));
     let s = run_scenario(
@@ -421,5 +420,4 @@ fn a_simulated_1_khz_ulog_replays_through_the_cli() {
     println!("1 kHz ULog replay vs its VIO: APE {rmse:.4} m, valid {valid:.4}");
     assert!(rmse < 0.05, "{fused}");
     assert!(valid > 0.98, "{summary}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

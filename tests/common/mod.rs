@@ -73,6 +73,58 @@ pub fn run_py(script: &str, args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// A fresh directory under the system's temp dir for one test: removed when dropped,
+/// unless the test is failing (then kept, and named on stderr, to look into).
+pub struct TempDir(PathBuf);
+
+impl TempDir {
+    /// `skyfuse-<name>-<pid>-<n>`, not created: some writers want to make it
+    /// themselves (a rosbag2 bag directory must not exist yet).
+    pub fn new(name: &str) -> TempDir {
+        static NEXT: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let d = std::env::temp_dir().join(format!("skyfuse-{name}-{}-{n}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        TempDir(d)
+    }
+}
+
+impl std::ops::Deref for TempDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TempDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for TempDir {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.0.as_os_str()
+    }
+}
+
+/// Remove `path` unless the thread is panicking: then keep it and say where it is.
+fn remove_unless_failing(path: &Path) {
+    if std::thread::panicking() {
+        eprintln!("kept for the failed test: {}", path.display());
+    } else if path.is_dir() {
+        let _ = std::fs::remove_dir_all(path);
+    } else {
+        let _ = std::fs::remove_file(path);
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        remove_unless_failing(&self.0);
+    }
+}
+
 /// The service binary as a child process, killed on drop.
 pub struct Service {
     pub child: Child,
@@ -212,6 +264,7 @@ impl Drop for Service {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        remove_unless_failing(&self.log);
     }
 }
 

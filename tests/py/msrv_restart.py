@@ -15,6 +15,7 @@ import argparse
 import json
 import math
 import os
+import shutil
 import socket
 import subprocess
 import tempfile
@@ -159,6 +160,12 @@ def main():
         msrv.wait()
         autopilot.stop.set()
         session.close()
+        log.close()
+        # The mavlink-server log is kept only when something went wrong.
+        if sys.exc_info()[1] is None:
+            shutil.rmtree(work, ignore_errors=True)
+        else:
+            print(f"mavlink-server log kept in {work}", file=sys.stderr)
 
 
 if __name__ == "__main__":
