@@ -341,3 +341,36 @@ fn zenoh_with_mutual_tls_and_access_control_lets_only_the_named_bridge_in() {
     assert_eq!(linked("plain"), 0, "plain TCP to the TLS port: {seen:?}");
     assert_eq!(got("plain"), 0, "{seen:?}");
 }
+
+/// Zenoh's thread names in process `pid` (`rx-0`, `acc-0`, ...), without the index.
+fn zenoh_threads(pid: u32) -> std::collections::BTreeSet<String> {
+    std::fs::read_dir(format!("/proc/{pid}/task"))
+        .expect("/proc")
+        .filter_map(|e| std::fs::read_to_string(e.ok()?.path().join("comm")).ok())
+        .filter_map(|c| Some(c.trim().rsplit_once('-')?.0.to_string()))
+        .collect()
+}
+
+#[test]
+fn links_accepted_by_the_service_are_read_by_zenohs_receiving_threads() {
+    // By default a link skyfuse accepts stays with Zenoh's acceptor runtime, whose
+    // thread wakes for every message to wake a receiving one; skyfuse hands the
+    // acceptor over to the receiving runtime unless ZENOH_RUNTIME says otherwise.
+    for (user, acceptor_thread) in [(None, false), (Some("(rx: (worker_threads: 1))"), true)] {
+        let env: Vec<(&str, &str)> = user.map(|v| ("ZENOH_RUNTIME", v)).into_iter().collect();
+        let listener = Service::start(&["run", "--connect", "tcp/127.0.0.1:1"], &env);
+        let _peer = Service::start(&["run", "--connect", &listener.zenoh_endpoint()], &env);
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+        let mut names = zenoh_threads(listener.child.id());
+        while !names.contains("rx") && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(200));
+            names = zenoh_threads(listener.child.id());
+        }
+        assert!(names.contains("rx"), "ZENOH_RUNTIME {user:?}: {names:?}");
+        assert_eq!(
+            names.contains("acc"),
+            acceptor_thread,
+            "ZENOH_RUNTIME {user:?}: {names:?}"
+        );
+    }
+}
