@@ -35,6 +35,33 @@ fn same_files(a: &Path, b: &Path) {
     }
 }
 
+/// `run_replay` with the default estimator and health configs, the whole log scored
+/// against `reference`; `fuse`: only these sources or kinds (all when `None`).
+fn replay(
+    name: &str,
+    samples: &[skyfuse::sample::Sample],
+    fuse: Option<&[&str]>,
+    reference: &str,
+    out: &Path,
+) -> skyfuse::offline::Summary {
+    let opts = ReplayOptions {
+        fuse: fuse.map(|f| f.iter().map(|s| s.to_string()).collect()),
+        reference: reference.into(),
+        window: None,
+        t0_us: None,
+    };
+    run_replay(
+        name,
+        samples,
+        EstimatorConfig::default(),
+        HealthConfig::default(),
+        &opts,
+        out,
+        &mut |_| {},
+    )
+    .expect("replay")
+}
+
 #[test]
 fn a_scenario_run_twice_gives_byte_identical_files() {
     let scn = scenario("gps-loss").expect("scenario");
@@ -69,28 +96,11 @@ fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
     // gets them. Through it: held on its side (54-64 s, the range reading a wall 4 m
     // away), carried 6 m by hand (87-96 s, off a table and set down on the floor).
     let log = skyfuse::replay::px4log::read_dir(Path::new(PX4_FLOW_VIO)).expect("PX4 CSV");
-    let opts = ReplayOptions {
-        fuse: Some(["flow", "range", "attitude"].map(String::from).to_vec()),
-        reference: "vio".into(),
-        window: None,
-        t0_us: None,
-    };
     let (a, b) = (tmp("px4-a"), tmp("px4-b"));
-    let mut summaries = vec![];
-    for d in [&a, &b] {
-        summaries.push(
-            run_replay(
-                "px4-flow-vio-7c824ee5",
-                &log.samples,
-                EstimatorConfig::default(),
-                HealthConfig::default(),
-                &opts,
-                d,
-                &mut |_| {},
-            )
-            .expect("replay"),
-        );
-    }
+    let fuse: &[&str] = &["flow", "range", "attitude"];
+    let summaries: Vec<_> = [&a, &b]
+        .map(|d| replay("px4-flow-vio-7c824ee5", &log.samples, Some(fuse), "vio", d))
+        .into();
     same_files(&a, &b);
     let s = &summaries[0];
     let stats = |name: &str, origin: bool| {
@@ -157,23 +167,8 @@ fn real_px4_flight_fusing_its_camera_too_stays_valid_in_the_air() {
     // recovery time on that (once, a look at the health tick saw a rejected sample)
     // left nothing to aid the estimate: invalid for 6 s in flight.
     let log = skyfuse::replay::px4log::read_dir(Path::new(PX4_FLOW_VIO)).expect("PX4 CSV");
-    let opts = ReplayOptions {
-        fuse: None,
-        reference: "vio".into(),
-        window: None,
-        t0_us: None,
-    };
     let out = tmp("px4-all");
-    let s = run_replay(
-        "px4-flow-vio-7c824ee5",
-        &log.samples,
-        EstimatorConfig::default(),
-        HealthConfig::default(),
-        &opts,
-        &out,
-        &mut |_| {},
-    )
-    .expect("replay");
+    let s = replay("px4-flow-vio-7c824ee5", &log.samples, None, "vio", &out);
     let a = &s.availability;
     println!("every source fused: {a:?}");
     assert!(a.airborne_valid_fraction.is_some_and(|f| f > 0.99), "{a:?}");
@@ -323,27 +318,15 @@ fn an_arducopter_telemetry_log_replays_against_the_simulators_truth() {
             log.messages
         );
     }
-    let opts = ReplayOptions {
-        fuse: Some(
-            ["imu", "attitude", "flow", "range"]
-                .map(String::from)
-                .to_vec(),
-        ),
-        reference: "sim_truth".into(),
-        window: None,
-        t0_us: None,
-    };
     let out = tmp("tlog");
-    let s = run_replay(
+    let fuse: &[&str] = &["imu", "attitude", "flow", "range"];
+    let s = replay(
         "arducopter-no-gps",
         &log.samples,
-        EstimatorConfig::default(),
-        HealthConfig::default(),
-        &opts,
+        Some(fuse),
+        "sim_truth",
         &out,
-        &mut |_| {},
-    )
-    .expect("replay");
+    );
     let fused = s
         .scores
         .iter()
