@@ -264,7 +264,6 @@ fn zenoh_with_mutual_tls_and_access_control_lets_only_the_named_bridge_in() {
     // another name is let in by TLS, sees the health, but its puts are denied; a
     // certificate of another CA, and plain TCP to the TLS port, get no session at all.
     let dir = TempDir::new("tls");
-    let _ = std::fs::remove_dir_all(&dir);
     let zport = free_port();
     let setup = run_py(
         "zenoh_tls.py",

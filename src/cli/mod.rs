@@ -290,7 +290,7 @@ pub fn main() -> ExitCode {
         };
     }
     // Still one thread: the environment may be set.
-    crate::ingest::zenoh_in::set_zenoh_runtime_default();
+    zenoh_in::set_zenoh_runtime_default();
     init_logging();
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()

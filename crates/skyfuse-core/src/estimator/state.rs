@@ -226,10 +226,8 @@ impl Core {
         ctx: &Ctx,
     ) {
         let st = self.stat(source);
-        let same_sample = st.last_time_us == Some(t);
-        st.count_test(same_sample, out.test_ratio);
+        let same_sample = st.count_test(t, out.test_ratio);
         st.kind = kind;
-        st.last_time_us = Some(t);
         if !same_sample || out.test_ratio > st.test_ratio {
             st.test_ratio = out.test_ratio;
             st.innovation = out.innovation.clone();
@@ -350,9 +348,8 @@ impl Core {
         let dof = y.nrows();
         let out = probe.update(&dvec(y.as_slice()), &h, &dmat3(r), ctx.gate(dof), false);
         let st = self.stat(source);
-        st.count_test(st.last_time_us == Some(t), out.test_ratio);
+        st.count_test(t, out.test_ratio);
         st.kind = kind;
-        st.last_time_us = Some(t);
         st.test_ratio = out.test_ratio;
         st.innovation = out.innovation;
         st.innovation_var = out.innovation_var;

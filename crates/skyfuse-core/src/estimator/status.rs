@@ -146,8 +146,11 @@ pub struct SourceStatus {
 }
 
 impl SourceStatus {
-    /// Count one gate test: the first of a new sample, or another of the same one.
-    pub(super) fn count_test(&mut self, same_sample: bool, test_ratio: f64) {
+    /// Count one gate test of the sample at `t` (the source's latest time from now
+    /// on): the first of a new sample, or another update of the same one. Returns
+    /// whether it was the same sample.
+    pub(super) fn count_test(&mut self, t: i64, test_ratio: f64) -> bool {
+        let same_sample = self.last_time_us.replace(t) == Some(t);
         if !same_sample {
             self.tested += 1;
             self.latest_over_gate = false;
@@ -157,6 +160,7 @@ impl SourceStatus {
             self.tested_over_gate += 1;
             self.latest_over_gate = true;
         }
+        same_sample
     }
 }
 

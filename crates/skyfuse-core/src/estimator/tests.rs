@@ -1060,13 +1060,14 @@ fn a_re_run_fuses_at_least_as_far_as_before() {
 fn a_samples_gate_tests_count_once_and_over_the_gate_once() {
     let mut s = SourceStatus::default();
     // A T265 sample: position accepted, body velocity over the gate.
-    s.count_test(false, 0.4);
-    s.count_test(true, 3.0);
+    assert!(!s.count_test(1_000, 0.4));
+    assert!(s.count_test(1_000, 3.0));
     // A second sample: both updates over the gate.
-    s.count_test(false, 2.0);
-    s.count_test(true, 5.0);
+    assert!(!s.count_test(6_000, 2.0));
+    assert!(s.count_test(6_000, 5.0));
     // A third, accepted; a fourth whose ratio is not a number.
-    s.count_test(false, 0.2);
-    s.count_test(false, f64::NAN);
+    assert!(!s.count_test(11_000, 0.2));
+    assert!(!s.count_test(16_000, f64::NAN));
     assert_eq!((s.tested, s.tested_over_gate), (4, 3));
+    assert_eq!(s.last_time_us, Some(16_000));
 }
