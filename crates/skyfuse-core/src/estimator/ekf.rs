@@ -14,7 +14,8 @@
 //! P_bb = P_pp, P_bp = -P_pp), which makes the first measurements carry only relative
 //! information, as they should.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+pub use super::measurement::{Measurement, MAX_ROWS};
+use nalgebra::{Cholesky, DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3};
 
 /// Standard gravity, m/s².
 pub const GRAVITY: f64 = 9.806_65;
@@ -28,16 +29,28 @@ pub const CORE_STATES: usize = 13;
 const VAR_FLOOR: f64 = 1e-12;
 
 /// Result of one measurement update.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct UpdateOutcome {
-    pub innovation: Vec<f64>,
+    rows: usize,
+    innovation: [f64; MAX_ROWS],
     /// Innovation variances (diagonal of S).
-    pub innovation_var: Vec<f64>,
+    innovation_var: [f64; MAX_ROWS],
     /// Normalised innovation squared yᵀS⁻¹y.
     pub nis: f64,
     /// NIS over the gate threshold: > 1 means rejected.
     pub test_ratio: f64,
     pub accepted: bool,
+}
+
+impl UpdateOutcome {
+    pub fn innovation(&self) -> &[f64] {
+        &self.innovation[..self.rows]
+    }
+
+    /// Innovation variances (diagonal of S).
+    pub fn innovation_var(&self) -> &[f64] {
+        &self.innovation_var[..self.rows]
+    }
 }
 
 /// The filter: state vector, covariance, and the odometry offset blocks.
@@ -188,51 +201,105 @@ impl Ekf {
         self.symmetrise_among(&Transition::CHANGED);
     }
 
-    /// Measurement update with innovation `y = z - h(x)`, Jacobian `h` (m×n) and noise
-    /// `r` (m×m). Rejected (state untouched) when the NIS exceeds `gate` (a chi²
-    /// threshold for m degrees of freedom), unless `force`.
-    pub fn update(
+    /// Measurement update: innovation, Jacobian and noise in `m`. Rejected (state
+    /// untouched) when the NIS exceeds `gate` (a chi² threshold for as many degrees of
+    /// freedom as `m` has rows), unless `force`. Allocates nothing up to
+    /// [`STACK_STATES`] states.
+    pub fn update(&mut self, m: &Measurement, gate: f64, force: bool) -> UpdateOutcome {
+        match m.rows() {
+            1 => self.update_rows::<1>(m, gate, force),
+            2 => self.update_rows::<2>(m, gate, force),
+            _ => self.update_rows::<3>(m, gate, force),
+        }
+    }
+
+    /// [`Self::update`] for an `M`-row measurement: S and its Cholesky factor are
+    /// fixed-size, P·Hᵀ and the gain are n×M on the stack.
+    fn update_rows<const M: usize>(
         &mut self,
-        y: &DVector<f64>,
-        h: &DMatrix<f64>,
-        r: &DMatrix<f64>,
+        m: &Measurement,
         gate: f64,
         force: bool,
     ) -> UpdateOutcome {
-        let pht = p_ht(&self.p, h);
-        let s = Self::innovation_cov_of(h, &pht, r);
-        let innovation: Vec<f64> = y.iter().copied().collect();
-        let innovation_var: Vec<f64> = s.diagonal().iter().copied().collect();
-        let Some(chol) = s.cholesky() else {
-            return UpdateOutcome {
-                innovation,
-                innovation_var,
+        let n = self.n();
+        assert!(
+            m.max_state().is_none_or(|s| s < n),
+            "the measurement reads a state the filter does not have"
+        );
+        with_scratch(2 * n * M, |scratch| {
+            let (pht, k) = scratch.split_at_mut(n * M);
+            self.p_ht::<M>(m, pht);
+            let s = innovation_cov::<M>(m, pht, n);
+            let y = SVector::<f64, M>::from_fn(|i, _| m.innovation()[i]);
+            let mut out = UpdateOutcome {
+                rows: M,
+                innovation: [0.0; MAX_ROWS],
+                innovation_var: [0.0; MAX_ROWS],
                 nis: f64::INFINITY,
                 test_ratio: f64::INFINITY,
                 accepted: false,
             };
-        };
-        let s_inv_y = chol.solve(y);
-        let nis = y.dot(&s_inv_y);
-        let test_ratio = if gate > 0.0 { nis / gate } else { 0.0 };
-        let accepted = nis.is_finite() && (force || test_ratio <= 1.0);
-        if accepted {
-            // K = P Hᵀ S⁻¹, computed as (S⁻¹ H P)ᵀ (S and P symmetric).
-            let hp = pht.transpose();
-            let k = chol.solve(&hp).transpose();
-            self.x += &k * y;
-            // P ← P − K H P: with the optimal gain this is the Joseph form
-            // (I − KH) P (I − KH)ᵀ + K R Kᵀ, at O(n² m) instead of three n³ products;
-            // symmetrising and the variance floor keep it well formed, as in EKF2.
-            self.p.gemm(-1.0, &k, &hp, 1.0);
-            self.symmetrise();
-        }
-        UpdateOutcome {
-            innovation,
-            innovation_var,
-            nis,
-            test_ratio,
-            accepted,
+            out.innovation[..M].copy_from_slice(m.innovation());
+            for i in 0..M {
+                out.innovation_var[i] = s[(i, i)];
+            }
+            let Some(chol) = Cholesky::new(s) else {
+                return out;
+            };
+            let s_inv_y = chol.solve(&y);
+            out.nis = dot(y.as_slice(), s_inv_y.as_slice());
+            out.test_ratio = if gate > 0.0 { out.nis / gate } else { 0.0 };
+            out.accepted = out.nis.is_finite() && (force || out.test_ratio <= 1.0);
+            if out.accepted {
+                // K = P Hᵀ S⁻¹, row j of it S⁻¹ (H P)[:, j] (S and P symmetric).
+                for j in 0..n {
+                    let mut row = SVector::<f64, M>::from_fn(|c, _| pht[c * n + j]);
+                    chol.solve_mut(&mut row);
+                    for c in 0..M {
+                        k[c * n + j] = row[c];
+                    }
+                }
+                // x += K y, summed by K's columns.
+                let x = self.x.as_mut_slice();
+                for (j, xj) in x.iter_mut().enumerate() {
+                    let mut dx = k[j] * y[0];
+                    for c in 1..M {
+                        dx += k[c * n + j] * y[c];
+                    }
+                    *xj += dx;
+                }
+                // P ← P − K H P: with the optimal gain this is the Joseph form
+                // (I − KH) P (I − KH)ᵀ + K R Kᵀ, at O(n² m) instead of three n³
+                // products; symmetrising and the variance floor keep it well formed, as
+                // in EKF2. (H P)[c, j] is (P Hᵀ)[j, c].
+                let p = self.p.as_mut_slice();
+                for (j, column) in p.chunks_exact_mut(n).enumerate() {
+                    for c in 0..M {
+                        let hp = pht[c * n + j];
+                        let kc = &k[c * n..(c + 1) * n];
+                        for (pij, kic) in column.iter_mut().zip(kc) {
+                            *pij -= kic * hp;
+                        }
+                    }
+                }
+                self.symmetrise();
+            }
+            out
+        })
+    }
+
+    /// `P·Hᵀ` (n×M, column-major, into `out`) over H's non-zero entries: column i is
+    /// Σ_k H[i,k]·P[:,k] (P symmetric), O(nnz·n) where the dense product is O(m·n²).
+    fn p_ht<const M: usize>(&self, m: &Measurement, out: &mut [f64]) {
+        let n = self.n();
+        let p = self.p.as_slice();
+        for (i, col) in out.chunks_exact_mut(n).enumerate().take(M) {
+            col.fill(0.0);
+            for (k, hik) in m.jacobian_row(i).entries() {
+                for (o, pk) in col.iter_mut().zip(&p[k * n..(k + 1) * n]) {
+                    *o += hik * pk;
+                }
+            }
         }
     }
 
@@ -357,30 +424,25 @@ impl Ekf {
         self.symmetrise();
     }
 
-    /// Innovation covariance S = H P Hᵀ + R, made exactly symmetric.
-    fn innovation_cov(&self, h: &DMatrix<f64>, r: &DMatrix<f64>) -> DMatrix<f64> {
-        Self::innovation_cov_of(h, &p_ht(&self.p, h), r)
-    }
-
-    /// S = H (P Hᵀ) + R, made exactly symmetric.
-    fn innovation_cov_of(h: &DMatrix<f64>, pht: &DMatrix<f64>, r: &DMatrix<f64>) -> DMatrix<f64> {
-        let s = h_times(h, pht) + r;
-        (&s + s.transpose()) * 0.5
-    }
-
     /// The normalised innovation test ratio a measurement would get (NIS / gate), without
     /// updating: infinite when S is singular.
-    pub fn test_ratio(
-        &self,
-        y: &DVector<f64>,
-        h: &DMatrix<f64>,
-        r: &DMatrix<f64>,
-        gate: f64,
-    ) -> f64 {
-        match self.innovation_cov(h, r).cholesky() {
-            Some(chol) if gate > 0.0 => y.dot(&chol.solve(y)) / gate,
-            Some(_) => 0.0,
-            None => f64::INFINITY,
+    pub fn test_ratio(&self, m: &Measurement, gate: f64) -> f64 {
+        fn ratio<const M: usize>(ekf: &Ekf, m: &Measurement, gate: f64) -> f64 {
+            let n = ekf.n();
+            with_scratch(n * M, |pht| {
+                ekf.p_ht::<M>(m, pht);
+                let y = SVector::<f64, M>::from_fn(|i, _| m.innovation()[i]);
+                match Cholesky::new(innovation_cov::<M>(m, pht, n)) {
+                    Some(chol) if gate > 0.0 => dot(y.as_slice(), chol.solve(&y).as_slice()) / gate,
+                    Some(_) => 0.0,
+                    None => f64::INFINITY,
+                }
+            })
+        }
+        match m.rows() {
+            1 => ratio::<1>(self, m, gate),
+            2 => ratio::<2>(self, m, gate),
+            _ => ratio::<3>(self, m, gate),
         }
     }
 
@@ -464,63 +526,42 @@ impl Transition {
     }
 }
 
-/// `P·Hᵀ` for a Jacobian `h` (m×n) that is mostly zeros (each measurement sees a few
-/// states), with `p` symmetric: column i is Σ_k h[i,k]·P[:,k] over the non-zero h[i,k],
-/// O(nnz·n) where the dense product is O(m·n²).
-fn p_ht(p: &DMatrix<f64>, h: &DMatrix<f64>) -> DMatrix<f64> {
-    let (m, n) = h.shape();
-    let mut out = DMatrix::zeros(n, m);
-    for i in 0..m {
-        for k in 0..n {
-            let hik = h[(i, k)];
-            if hik != 0.0 {
-                out.column_mut(i).axpy(hik, &p.column(k), 1.0);
+/// P·Hᵀ and the gain of a filter this large fit on the stack (13 core states and 17
+/// odometry sources); a larger one takes them from the heap.
+pub const STACK_STATES: usize = 64;
+
+/// Runs `f` on `len` zeroed scratch values: on the stack up to [`STACK_STATES`]·2·3.
+fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
+    const STACK: usize = 2 * STACK_STATES * MAX_ROWS;
+    if len <= STACK {
+        let mut buf = [0.0; STACK];
+        f(&mut buf[..len])
+    } else {
+        f(&mut vec![0.0; len])
+    }
+}
+
+/// S = H (P Hᵀ) + R, made exactly symmetric; `pht` is n×M column-major.
+fn innovation_cov<const M: usize>(m: &Measurement, pht: &[f64], n: usize) -> SMatrix<f64, M, M> {
+    let mut s = SMatrix::<f64, M, M>::zeros();
+    for i in 0..M {
+        for (k, hik) in m.jacobian_row(i).entries() {
+            for j in 0..M {
+                s[(i, j)] += hik * pht[j * n + k];
             }
         }
     }
-    out
-}
-
-/// `H·M` for a Jacobian `h` (m×n) that is mostly zeros and an n×c `pht`.
-fn h_times(h: &DMatrix<f64>, pht: &DMatrix<f64>) -> DMatrix<f64> {
-    let (m, n) = h.shape();
-    let mut out = DMatrix::zeros(m, pht.ncols());
-    for i in 0..m {
-        for k in 0..n {
-            let hik = h[(i, k)];
-            if hik != 0.0 {
-                for j in 0..pht.ncols() {
-                    out[(i, j)] += hik * pht[(k, j)];
-                }
-            }
+    for i in 0..M {
+        for j in 0..M {
+            s[(i, j)] += m.noise(i, j);
         }
     }
-    out
+    (s + s.transpose()) * 0.5
 }
 
-/// Jacobian row block selecting the position (3×n).
-pub fn h_pos(n: usize) -> DMatrix<f64> {
-    let mut h = DMatrix::zeros(3, n);
-    for i in 0..3 {
-        h[(i, IDX_P + i)] = 1.0;
-    }
-    h
-}
-
-/// Jacobian row of the height above the terrain, z − terrain (1×n).
-pub fn h_height(n: usize) -> DMatrix<f64> {
-    let mut h = DMatrix::zeros(1, n);
-    h[(0, IDX_P + 2)] = 1.0;
-    h[(0, IDX_TERRAIN)] = -1.0;
-    h
-}
-
-pub fn dmat3(m: &Matrix3<f64>) -> DMatrix<f64> {
-    DMatrix::from_iterator(3, 3, m.iter().copied())
-}
-
-pub fn dvec(v: &[f64]) -> DVector<f64> {
-    DVector::from_column_slice(v)
+/// Σ a_i·b_i in order.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).fold(0.0, |acc, (x, y)| acc + x * y)
 }
 
 // ---- chi² gate ----------------------------------------------------------------------
@@ -711,10 +752,9 @@ mod tests {
         );
         assert!((ekf.p[(0, 0)] - 5.0).abs() < 1e-12);
         assert!((ekf.p[(0, 3)] - 1.0).abs() < 1e-12);
-        let mut h = DMatrix::zeros(1, ekf.n());
-        h[(0, 0)] = 1.0;
-        let y = dvec(&[2.0 - ekf.pos().x]);
-        let out = ekf.update(&y, &h, &DMatrix::identity(1, 1), 25.0, false);
+        let y = Vector3::new(2.0 - ekf.pos().x, 0.0, 0.0);
+        let m = Measurement::of_states(IDX_P, 1, &y, &Matrix3::identity());
+        let out = ekf.update(&m, 25.0, false);
         assert!(out.accepted);
         assert!((out.nis - 4.0 / 6.0).abs() < 1e-12);
         assert!((ekf.x[0] - 5.0 / 3.0).abs() < 1e-12, "{}", ekf.x[0]);
@@ -737,8 +777,6 @@ mod tests {
             Vector3::new(1.0, 1.0, 1.0),
             0.0,
         );
-        let mut h = DMatrix::zeros(1, ekf.n());
-        h[(0, 0)] = 1.0;
         for z in [0.1, 0.25, 0.33, 0.52, 0.61] {
             ekf.predict(
                 Vector3::new(0.0, 0.0, GRAVITY),
@@ -748,8 +786,9 @@ mod tests {
                 0.0,
                 |_| 0.0,
             );
-            let y = dvec(&[z - ekf.x[0]]);
-            ekf.update(&y, &h, &(DMatrix::identity(1, 1) * 0.25), 1e9, false);
+            let y = Vector3::new(z - ekf.x[0], 0.0, 0.0);
+            let m = Measurement::of_states(IDX_P, 1, &y, &(Matrix3::identity() * 0.25));
+            ekf.update(&m, 1e9, false);
         }
         let expected_x = [FILTERPY_X0, FILTERPY_X1];
         let expected_p = [FILTERPY_P00, FILTERPY_P01, FILTERPY_P11];
@@ -776,13 +815,14 @@ mod tests {
             0.01,
         );
         let before = ekf.clone();
-        let h = h_pos(ekf.n());
-        let r = dmat3(&Matrix3::identity());
+        let r = Matrix3::identity();
         let gate = chi2_gate(3, 5.0);
-        let out = ekf.update(&dvec(&[20.0, 0.0, 0.0]), &h, &r, gate, false);
+        let m = Measurement::of_states(IDX_P, 3, &Vector3::new(20.0, 0.0, 0.0), &r);
+        let out = ekf.update(&m, gate, false);
         assert!(!out.accepted && out.test_ratio > 1.0);
         assert_eq!(ekf, before);
-        let out = ekf.update(&dvec(&[1.0, -1.0, 0.5]), &h, &r, gate, false);
+        let m = Measurement::of_states(IDX_P, 3, &Vector3::new(1.0, -1.0, 0.5), &r);
+        let out = ekf.update(&m, gate, false);
         assert!(out.accepted && out.test_ratio < 0.1);
     }
 
@@ -807,13 +847,17 @@ mod tests {
             0.01,
         );
         let idx = ekf.start_block("vo");
-        let n = ekf.n();
-        let mut h = h_pos(n);
+        let mut m = Measurement::of_states(
+            IDX_P,
+            3,
+            &Vector3::new(0.01, 0.0, 0.0),
+            &(Matrix3::identity() * 1e-4),
+        );
         for i in 0..3 {
-            h[(i, idx + i)] = 1.0;
+            m.set_jacobian(i, idx + i, 1.0);
         }
         // H P Hᵀ is zero: the first odometry sample says nothing about absolute position.
-        let s = &h * &ekf.p * h.transpose();
+        let s = dense_h(&m, ekf.n()) * &ekf.p * dense_h(&m, ekf.n()).transpose();
         assert!(s.norm() < 1e-9, "{s}");
         for _ in 0..50 {
             ekf.predict(
@@ -824,10 +868,97 @@ mod tests {
                 1e-3,
                 |_| 0.01,
             );
-            let y = dvec(&[0.01, 0.0, 0.0]);
-            ekf.update(&y, &h, &dmat3(&(Matrix3::identity() * 1e-4)), 1e9, false);
+            ekf.update(&m, 1e9, false);
         }
         assert!(ekf.p.clone().cholesky().is_some(), "not positive definite");
         assert_eq!(ekf.p, ekf.p.transpose());
+    }
+
+    /// H as a dense rows×n matrix.
+    fn dense_h(m: &Measurement, n: usize) -> DMatrix<f64> {
+        let mut h = DMatrix::zeros(m.rows(), n);
+        for i in 0..m.rows() {
+            for (k, v) in m.jacobian_row(i).entries() {
+                h[(i, k)] = v;
+            }
+        }
+        h
+    }
+
+    /// The sparse, fixed-size update equals the textbook dense one (S = H P Hᵀ + R,
+    /// K = P Hᵀ S⁻¹, x += K y, P −= K H P) for 1, 2 and 3 rows, on a full covariance
+    /// with an odometry block, rows reading several states (a rotated body velocity, a
+    /// position with its offset) and correlated noise.
+    #[test]
+    fn update_equals_the_dense_textbook_update() {
+        let n = CORE_STATES + 3;
+        let a = DMatrix::from_fn(n, n, |i, j| ((i * 5 + j * 11) % 13) as f64 / 13.0 - 0.45);
+        let p0 = &a * a.transpose() + DMatrix::identity(n, n) * 0.3;
+        let rot = *nalgebra::Rotation3::from_euler_angles(0.2, 0.1, -0.9).matrix();
+        for rows in 1..=3 {
+            let mut ekf = Ekf::new(
+                Vector3::zeros(),
+                Vector3::zeros(),
+                Vector3::repeat(1.0),
+                Vector3::repeat(1.0),
+                0.0,
+            );
+            ekf.x = DVector::from_fn(n, |i, _| (i as f64 * 0.37).sin());
+            ekf.p = p0.clone();
+            ekf.blocks.push(("vo".into(), CORE_STATES));
+            let mut m = Measurement::new(rows);
+            for i in 0..rows {
+                m.set_innovation(i, 0.3 - 0.2 * i as f64);
+                for j in 0..3 {
+                    m.set_jacobian(i, IDX_V + j, rot[(j, i)]);
+                }
+                m.set_jacobian(i, CORE_STATES + i, 1.0);
+                for j in 0..rows {
+                    m.set_noise(i, j, if i == j { 0.5 } else { 0.1 });
+                }
+            }
+            let h = dense_h(&m, n);
+            let r = DMatrix::from_fn(rows, rows, |i, j| m.noise(i, j));
+            let y = DVector::from_column_slice(m.innovation());
+            let s = &h * &p0 * h.transpose() + &r;
+            let s_inv = s.clone().try_inverse().expect("S invertible");
+            let k = &p0 * h.transpose() * &s_inv;
+            let x = &ekf.x + &k * &y;
+            let p = &p0 - &k * &h * &p0;
+            let nis = (y.transpose() * &s_inv * &y)[(0, 0)];
+
+            let out = ekf.update(&m, 1e9, false);
+            assert!(out.accepted);
+            assert!(
+                (out.nis - nis).abs() < 1e-12,
+                "{rows} rows: nis {} vs {nis}",
+                out.nis
+            );
+            assert_eq!(out.innovation(), y.as_slice());
+            for i in 0..rows {
+                assert!((out.innovation_var()[i] - s[(i, i)]).abs() < 1e-12);
+            }
+            let dx = (&ekf.x - &x).abs().max();
+            let dp = (&ekf.p - &p).abs().max();
+            assert!(
+                dx < 1e-12 && dp < 1e-12,
+                "{rows} rows: x off by {dx}, P by {dp}"
+            );
+            assert!(
+                (&ekf.x - DVector::from_fn(n, |i, _| (i as f64 * 0.37).sin()))
+                    .abs()
+                    .max()
+                    > 1e-3,
+                "the update moved the state"
+            );
+            assert!(
+                (ekf.test_ratio(&m, 2.0) - {
+                    let s = dense_h(&m, n) * &ekf.p * dense_h(&m, n).transpose() + &r;
+                    (y.transpose() * s.try_inverse().expect("S") * &y)[(0, 0)] / 2.0
+                })
+                .abs()
+                    < 1e-12
+            );
+        }
     }
 }

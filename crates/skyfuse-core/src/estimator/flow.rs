@@ -181,23 +181,34 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     let sc = cfg.source(source);
     if f.quality < cfg.flow_min_quality {
         core.reject(t, source, "quality below flow_min_quality", ctx);
-        core.flow.entry(source.to_string()).or_default().last_t = Some(t);
+        super::get_or_insert_with(&mut core.flow, source, || {
+            (source.to_string(), FlowState::default())
+        })
+        .last_t = Some(t);
         return;
     }
     if core.att.known() && cos_tilt(&core.att.q) < cfg.range_max_tilt_rad.cos() {
         core.reject(t, source, "tilt too large for the flow", ctx);
-        core.flow.entry(source.to_string()).or_default().last_t = Some(t);
+        super::get_or_insert_with(&mut core.flow, source, || {
+            (source.to_string(), FlowState::default())
+        })
+        .last_t = Some(t);
         return;
     }
     let Some(height) = flow_height(core, ctx, t, source, f) else {
         core.reject(t, source, "no height for the flow", ctx);
         return;
     };
-    let mut st = core.flow.remove(source).unwrap_or_default();
+    // Taken out while this sample works on it (every path puts it back), its key kept.
+    let mut st = core
+        .flow
+        .get_mut(source)
+        .map(std::mem::take)
+        .unwrap_or_default();
     let rate_noise = sc.noise.unwrap_or(cfg.flow_rate_noise);
     let fv = if let Some(rate) = f.rate {
         if !rate.iter().all(|v| v.is_finite()) || rate.amax() > sc.max_rate {
-            core.flow.insert(source.to_string(), st);
+            super::put(&mut core.flow, source, st);
             core.reject(t, source, "flow rate not finite or above max_rate", ctx);
             return;
         }
@@ -206,7 +217,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
             None => match st.lpf.y.or(core.imu.rate.map(|r| r.1)) {
                 Some(g) => g.xy(),
                 None => {
-                    core.flow.insert(source.to_string(), st);
+                    super::put(&mut core.flow, source, st);
                     core.reject(t, source, "no gyro for rotation compensation", ctx);
                     return;
                 }
@@ -240,7 +251,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
             scaled_rate: Vector2::zeros(),
         }
     } else {
-        core.flow.insert(source.to_string(), st);
+        super::put(&mut core.flow, source, st);
         core.reject(t, source, "flow sample without rate or velocity", ctx);
         return;
     };
@@ -272,7 +283,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
         let var = Vector3::new(fv.var.x * dt * dt, fv.var.y * dt * dt, f64::INFINITY);
         core.wrls.add_relative(source, d, var, dt);
     }
-    core.flow.insert(source.to_string(), st);
+    super::put(&mut core.flow, source, st);
     if low {
         core.reject(t, source, "below flow_min_height_m", ctx);
         return;

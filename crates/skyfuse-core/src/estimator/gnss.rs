@@ -105,7 +105,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     if let Some((_, last)) = core.gnss.last.get(source) {
         core.debug_point(t, DebugTopic::OriginDgps, source, enu - last);
     }
-    core.gnss.last.insert(source.to_string(), (t, enu));
+    super::put(&mut core.gnss.last, source, (t, enu));
     let vel = fix
         .velocity
         .filter(|v| cfg.gnss_fuse_velocity && v.iter().all(|x| x.is_finite()));

@@ -24,12 +24,12 @@
 //! without an IMU, only the autopilot's landed state counts. When aiding returns the
 //! track continues from the held position: no jump, no reset.
 
-use super::ekf::{dvec, h_height, GRAVITY, IDX_P, IDX_V};
+use super::ekf::{Measurement, GRAVITY, IDX_P, IDX_V};
 use super::imu::Lpf3;
 use super::{Core, Ctx, Event};
 use crate::event::ConstraintChange;
 use crate::sample::{LandedState, VehicleState};
-use nalgebra::{DMatrix, Vector3};
+use nalgebra::Vector3;
 
 /// Constraints are fused at most this often, µs (EKF2 fuses its fake position at 5 Hz).
 pub const FUSE_EVERY_US: i64 = 100_000;
@@ -396,22 +396,19 @@ fn fuse_force(core: &mut Core, idx: &[usize], z: Vector3<f64>, var: f64) -> bool
     let Some(ekf) = core.ekf.as_mut() else {
         return false;
     };
-    let m = idx.len();
-    let mut h = DMatrix::zeros(m, ekf.n());
-    let mut y = vec![0.0; m];
+    let mut m = Measurement::new(idx.len());
     for (row, &i) in idx.iter().enumerate() {
-        h[(row, i)] = 1.0;
-        y[row] = z[row] - ekf.x[i];
+        m.set_jacobian(row, i, 1.0);
+        m.set_innovation(row, z[row] - ekf.x[i]);
+        m.set_noise(row, row, var);
     }
-    let r = DMatrix::from_diagonal_element(m, m, var);
-    ekf.update(&dvec(&y), &h, &r, 0.0, true).accepted
+    ekf.update(&m, 0.0, true).accepted
 }
 
 fn fuse_height_force(core: &mut Core, h_meas: f64, var: f64) {
     let Some(ekf) = core.ekf.as_mut() else { return };
-    let y = h_meas - ekf.height_above_terrain();
-    let r = DMatrix::from_element(1, 1, var);
-    ekf.update(&dvec(&[y]), &h_height(ekf.n()), &r, 0.0, true);
+    let m = Measurement::height(h_meas - ekf.height_above_terrain(), var);
+    ekf.update(&m, 0.0, true);
 }
 
 #[cfg(test)]

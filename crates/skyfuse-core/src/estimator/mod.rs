@@ -39,6 +39,7 @@ mod flow;
 mod gnss;
 mod ground;
 mod imu;
+mod measurement;
 pub mod monitor;
 mod odometry;
 mod output;
@@ -85,6 +86,15 @@ where
         map.insert(k, v);
     }
     map.get_mut(key).expect("inserted above under the same key")
+}
+
+/// `map[key] = value`, returning the value it replaces: like `insert`, but the key is
+/// allocated only when it is new (per-source state is put back with every sample).
+pub(crate) fn put<V>(map: &mut BTreeMap<String, V>, key: &str, value: V) -> Option<V> {
+    match map.get_mut(key) {
+        Some(slot) => Some(std::mem::replace(slot, value)),
+        None => map.insert(key.to_string(), value),
+    }
 }
 
 /// Order of samples at equal times: prediction inputs first.

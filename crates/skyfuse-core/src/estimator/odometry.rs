@@ -11,10 +11,10 @@
 //! body-frame velocity.
 
 use super::attitude::{wrap_pi, yaw_of};
-use super::ekf::IDX_V;
+use super::ekf::{Measurement, IDX_V};
 use super::{Core, Ctx, DebugTopic, Event};
 use crate::sample::Odometry;
-use nalgebra::{DMatrix, Matrix3, Quaternion, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
 /// Alignment of one segment: world = rot · odom + trans.
 #[derive(Debug, Clone, PartialEq)]
@@ -132,7 +132,12 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
         }
     }
     // Control: does a new segment start?
-    let mut st = core.odom.remove(source).unwrap_or_default();
+    // Taken out while this sample works on it (every path puts it back), its key kept.
+    let mut st = core
+        .odom
+        .get_mut(source)
+        .map(std::mem::take)
+        .unwrap_or_default();
     let reject_us = (cfg.vo_reject_realign_s * 1e6) as i64;
     let mut reason: Option<String> = None;
     if st.align.is_none() {
@@ -192,7 +197,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
         );
     }
     let Some(al) = st.align.clone() else {
-        core.odom.insert(source.to_string(), st);
+        super::put(&mut core.odom, source, st);
         return;
     };
     let z = al.rot * b.pos + al.trans;
@@ -214,7 +219,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
         }
     }
     st.last = Some((t, b.pos, v_odom_now));
-    core.odom.insert(source.to_string(), st);
+    super::put(&mut core.odom, source, st);
 
     // Fuse position: z = p + b.
     let c = match sc.noise {
@@ -251,16 +256,17 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
     }
 }
 
-/// Jacobian of a body-frame velocity measurement: rows of Rᵀ at the velocity states.
-pub fn h_body_velocity(n: usize, rot: &Matrix3<f64>, rows: usize) -> DMatrix<f64> {
+/// A body-frame velocity measurement's Jacobian (rows of Rᵀ at the velocity states);
+/// innovation and noise zero.
+pub fn body_velocity_measurement(rot: &Matrix3<f64>, rows: usize) -> Measurement {
     let rt = rot.transpose();
-    let mut h = DMatrix::zeros(rows, n);
+    let mut m = Measurement::new(rows);
     for i in 0..rows {
         for j in 0..3 {
-            h[(i, IDX_V + j)] = rt[(i, j)];
+            m.set_jacobian(i, IDX_V + j, rt[(i, j)]);
         }
     }
-    h
+    m
 }
 
 #[cfg(test)]

@@ -16,10 +16,9 @@
 
 use super::attitude::cos_tilt;
 use super::config::{DEFAULT_RANGE_MAX_M, DEFAULT_RANGE_MIN_M};
-use super::ekf::{dvec, h_height, IDX_P};
+use super::ekf::{Measurement, IDX_P};
 use super::{Core, Ctx, Event};
 use crate::sample::Range;
-use nalgebra::DMatrix;
 
 /// A range source none of whose readings passed the gate for this long resets the
 /// terrain to its reading, µs (EKF2's `hgt_fusion_timeout_max`).
@@ -76,7 +75,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, r: &Range) {
         return;
     }
     // Kept as the flow's scale only when it is a distance to the ground below.
-    let previous = core.range.insert(source.to_string(), (t, r.distance_m));
+    let previous = super::put(&mut core.range, source, (t, r.distance_m));
     let stepped = previous.is_some_and(|(tp, dp)| {
         let dt = (t - tp) as f64 * 1e-6;
         dt > 0.0 && dt < 1.0 && (r.distance_m - dp).abs() > RANGE_STEP_SPEED * dt
@@ -114,12 +113,7 @@ fn reset_terrain_if_rejected(
     let (h_meas, r) = height_of(core, slant, var);
     let Some(ekf) = core.ekf.as_mut() else { return };
     let before = ekf.height_above_terrain();
-    let ratio = ekf.test_ratio(
-        &dvec(&[h_meas - before]),
-        &h_height(ekf.n()),
-        &DMatrix::from_element(1, 1, r),
-        ctx.gate(1),
-    );
+    let ratio = ekf.test_ratio(&Measurement::height(h_meas - before, r), ctx.gate(1));
     if ratio <= 1.0 {
         return;
     }

@@ -3,7 +3,7 @@
 //! it: gating and recording updates, events, aiding, validity, initialisation.
 
 use super::attitude::{self, AttitudeState};
-use super::ekf::{self, dmat3, dvec, Ekf, UpdateOutcome, GRAVITY, IDX_P, IDX_V};
+use super::ekf::{self, Ekf, Measurement, UpdateOutcome, GRAVITY, IDX_P, IDX_V};
 use super::flow::{self, FlowCalibrator, FlowState};
 use super::gnss::{self, GnssState};
 use super::ground;
@@ -11,11 +11,11 @@ use super::imu::{self, ImuState};
 use super::monitor::{MonitorReset, Monitors};
 use super::odometry::{self, OdomState};
 use super::range;
-use super::wrls::Wrls;
+use super::wrls::{Wrls, WrlsOutput};
 use super::{DebugSeries, DebugTopic, EstimatorConfig, EstimatorEvent, Event, Mode, SourceStatus};
 use crate::event;
 use crate::sample::{SensorData, SensorKind};
-use nalgebra::{DMatrix, Matrix3, Vector3};
+use nalgebra::{Matrix3, Vector3};
 use std::collections::BTreeMap;
 
 /// Read-only context of one processing step.
@@ -55,6 +55,8 @@ pub(crate) struct Core {
     /// On the ground / at rest, and the constraints without horizontal aiding.
     pub ground: ground::GroundState,
     pub wrls: Wrls,
+    /// The ticks [`Wrls::tick`] just ran (kept for its room: no allocation per tick).
+    wrls_out: Vec<WrlsOutput>,
     pub wrls_ekf_last: Option<i64>,
     pub monitors: Monitors,
     pub reset_counter: u8,
@@ -175,7 +177,9 @@ impl Core {
         let p = self.debug.series.entry(topic).or_default();
         p.time_us = t;
         if p.source != source {
-            p.source = source.to_string();
+            // Into the room it has: sources take turns on a topic.
+            p.source.clear();
+            p.source.push_str(source);
         }
         p.value = [v.x, v.y, v.z];
     }
@@ -230,8 +234,7 @@ impl Core {
         st.kind = kind;
         if !same_sample || out.test_ratio > st.test_ratio {
             st.test_ratio = out.test_ratio;
-            st.innovation = out.innovation.clone();
-            st.innovation_var = out.innovation_var.clone();
+            st.set_innovation(out);
         }
         if out.accepted {
             st.accepted += 1;
@@ -249,60 +252,55 @@ impl Core {
                 format!("{source}: innovation test ratio {ratio:.2} > 1, measurement rejected"),
                 Event::GateReject {
                     test_ratio: ratio,
-                    innovation: out.innovation.clone(),
+                    innovation: out.innovation().to_vec(),
                 },
                 ctx,
             );
         }
     }
 
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn update(
         &mut self,
         t: i64,
         source: &str,
         kind: &'static str,
-        y: DMatrix<f64>,
-        h: DMatrix<f64>,
-        r: DMatrix<f64>,
+        m: &Measurement,
         ctx: &Ctx,
     ) -> bool {
         let Some(ekf) = self.ekf.as_mut() else {
             return false;
         };
-        let dof = y.nrows();
-        let y = dvec(y.as_slice());
-        let out = ekf.update(&y, &h, &r, ctx.gate(dof), false);
-        let ok = out.accepted;
+        let out = ekf.update(m, ctx.gate(m.rows()), false);
         self.record(t, source, kind, &out, ctx);
-        ok
+        out.accepted
     }
 
-    /// The innovation of a position measurement: (y, H), or None without a filter.
-    pub(super) fn position_innovation(
+    /// A position measurement (noise `r`), or None without a filter.
+    pub(super) fn position_measurement(
         &self,
         kind: &'static str,
         z: Vector3<f64>,
+        r: &Matrix3<f64>,
         block: Option<&str>,
-    ) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+    ) -> Option<Measurement> {
         let ekf = self.ekf.as_ref()?;
-        let n = ekf.n();
-        let mut h = ekf::h_pos(n);
+        // z = p (+ the GNSS slow error) (+ the odometry source's offset).
+        let gnss_error = (kind == "gnss").then_some(ekf::IDX_BG);
+        let offset = block.and_then(|s| ekf.block(s));
+        let added = [gnss_error, offset];
         let mut pred = ekf.pos();
-        if kind == "gnss" {
+        for first in added.into_iter().flatten() {
             for i in 0..3 {
-                h[(i, ekf::IDX_BG + i)] = 1.0;
-                pred[i] += ekf.x[ekf::IDX_BG + i];
+                pred[i] += ekf.x[first + i];
             }
         }
-        if let Some(b) = block.and_then(|s| ekf.block(s)) {
+        let mut m = Measurement::of_states(IDX_P, 3, &(z - pred), r);
+        for first in added.into_iter().flatten() {
             for i in 0..3 {
-                h[(i, b + i)] = 1.0;
-                pred[i] += ekf.x[b + i];
+                m.set_jacobian(i, first + i, 1.0);
             }
         }
-        let y = z - pred;
-        Some((DMatrix::from_column_slice(3, 1, y.as_slice()), h))
+        Some(m)
     }
 
     /// Fuse a world position (GNSS) or an odometry position (`block` = its offset).
@@ -321,10 +319,10 @@ impl Core {
             self.mark_aiding(t, source, kind);
             return true;
         }
-        let Some((y, h)) = self.position_innovation(kind, z, block) else {
+        let Some(m) = self.position_measurement(kind, z, r, block) else {
             return false;
         };
-        self.update(t, source, kind, y, h, dmat3(r), ctx)
+        self.update(t, source, kind, &m, ctx)
     }
 
     /// The innovation test of a position measurement from a source the health layer
@@ -339,20 +337,19 @@ impl Core {
         r: &Matrix3<f64>,
         ctx: &Ctx,
     ) {
-        let Some((y, h)) = self.position_innovation(kind, z, None) else {
+        let Some(m) = self.position_measurement(kind, z, r, None) else {
             return;
         };
-        let Some(mut probe) = self.ekf.clone() else {
+        let Some(ekf) = self.ekf.as_ref() else {
             return;
         };
-        let dof = y.nrows();
-        let out = probe.update(&dvec(y.as_slice()), &h, &dmat3(r), ctx.gate(dof), false);
+        // The gate test alone: what the update would have said, the state untouched.
+        let out = ekf.clone().update(&m, ctx.gate(m.rows()), false);
         let st = self.stat(source);
         st.count_test(t, out.test_ratio);
         st.kind = kind;
         st.test_ratio = out.test_ratio;
-        st.innovation = out.innovation;
-        st.innovation_var = out.innovation_var;
+        st.set_innovation(&out);
     }
 
     pub fn fuse_world_velocity(
@@ -367,14 +364,8 @@ impl Core {
             return;
         }
         let Some(ekf) = self.ekf.as_ref() else { return };
-        let n = ekf.n();
-        let mut h = DMatrix::zeros(3, n);
-        for i in 0..3 {
-            h[(i, IDX_V + i)] = 1.0;
-        }
-        let y = v - ekf.vel();
-        let y = DMatrix::from_column_slice(3, 1, y.as_slice());
-        self.update(t, source, "gnss", y, h, dmat3(r), ctx);
+        let m = Measurement::of_states(IDX_V, 3, &(v - ekf.vel()), r);
+        self.update(t, source, "gnss", &m, ctx);
     }
 
     /// Fuse the first `rows` components of a body-frame velocity.
@@ -398,19 +389,16 @@ impl Core {
         let pred = rot.transpose() * ekf.vel();
         // Attitude error turns the velocity: |v|²·σ² per axis.
         let att_var = ekf.vel().norm_squared() * self.att.cov.trace() / 3.0;
-        let h = odometry::h_body_velocity(ekf.n(), &rot, rows);
-        let mut y = DMatrix::zeros(rows, 1);
-        let mut rr = DMatrix::zeros(rows, rows);
+        let mut m = odometry::body_velocity_measurement(&rot, rows);
         for i in 0..rows {
-            y[(i, 0)] = vb[i] - pred[i];
-            for j in 0..rows {
-                rr[(i, j)] = r[(i, j)];
-            }
-            rr[(i, i)] += att_var;
+            m.set_innovation(i, vb[i] - pred[i]);
             r[(i, i)] += att_var;
+            for j in 0..rows {
+                m.set_noise(i, j, r[(i, j)]);
+            }
         }
         let kind = if rows == 2 { "flow" } else { "odometry" };
-        self.update(t, source, kind, y, h, rr, ctx);
+        self.update(t, source, kind, &m, ctx);
     }
 
     /// Fuse a height above the terrain: h = p_z − z_t.
@@ -420,10 +408,8 @@ impl Core {
             return;
         }
         let Some(ekf) = self.ekf.as_ref() else { return };
-        let y = DMatrix::from_element(1, 1, z - ekf.height_above_terrain());
-        let h = ekf::h_height(ekf.n());
-        let r = DMatrix::from_element(1, 1, var);
-        self.update(t, source, "range", y, h, r, ctx);
+        let m = Measurement::height(z - ekf.height_above_terrain(), var);
+        self.update(t, source, "range", &m, ctx);
     }
 
     /// Latest range-finder slant distance (within 200 ms).
@@ -533,8 +519,10 @@ impl Core {
     pub(super) fn advance(&mut self, t: i64, ctx: &Ctx) {
         let cfg = ctx.cfg;
         let period_us = (cfg.wrls_period_ms * 1000.0) as i64;
-        let outs = self.wrls.tick(t, period_us, cfg.wrls_no_delta_var);
-        for o in outs {
+        let mut outs = std::mem::take(&mut self.wrls_out);
+        self.wrls
+            .tick(t, period_us, cfg.wrls_no_delta_var, &mut outs);
+        for o in outs.drain(..) {
             self.debug_point(o.t, DebugTopic::FusionDisplace, "wrls", o.delta);
             if self.mode_wrls {
                 self.debug_point(o.t, DebugTopic::PoseMsg, "wrls", o.x);
@@ -545,15 +533,14 @@ impl Core {
                     self.wrls_ekf_last = Some(o.t);
                     self.predict_to(o.t, ctx);
                     if let Some(ekf) = self.ekf.as_ref() {
-                        let h = ekf::h_pos(ekf.n());
-                        let y = o.x - ekf.pos();
-                        let y = DMatrix::from_column_slice(3, 1, y.as_slice());
-                        let r = dmat3(&Matrix3::from_diagonal(&o.var));
-                        self.update(o.t, "wrls", "gnss", y, h, r, ctx);
+                        let r = Matrix3::from_diagonal(&o.var);
+                        let m = Measurement::of_states(IDX_P, 3, &(o.x - ekf.pos()), &r);
+                        self.update(o.t, "wrls", "gnss", &m, ctx);
                     }
                 }
             }
         }
+        self.wrls_out = outs;
         self.predict_to(t, ctx);
     }
 

@@ -146,6 +146,15 @@ pub struct SourceStatus {
 }
 
 impl SourceStatus {
+    /// The innovation and its variances of `out`, copied into the vectors this status
+    /// already has (no allocation once they have room for three rows).
+    pub(super) fn set_innovation(&mut self, out: &super::ekf::UpdateOutcome) {
+        self.innovation.clear();
+        self.innovation.extend_from_slice(out.innovation());
+        self.innovation_var.clear();
+        self.innovation_var.extend_from_slice(out.innovation_var());
+    }
+
     /// Count one gate test of the sample at `t` (the source's latest time from now
     /// on): the first of a new sample, or another update of the same one. Returns
     /// whether it was the same sample.

@@ -29,6 +29,12 @@ pub struct WrlsOutput {
     pub delta: Vector3<f64>,
 }
 
+/// An absolute position and its per-axis variance (NaN where it says nothing).
+type Absolute = (Vector3<f64>, Vector3<f64>);
+
+/// Per source, keyed by its id: the entries stay once a source has been seen, and a
+/// tick empties their values, so a tick allocates nothing (a source's first sample
+/// does, once).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Wrls {
     pub x: Option<Vector3<f64>>,
@@ -38,34 +44,65 @@ pub struct Wrls {
     pub t: Option<i64>,
     pub last_delta: Vector3<f64>,
     pub last_delta_var: Vector3<f64>,
-    /// Weights of the last tick per source (x axis; y, z alike unless a source lacks one).
+    /// Weights of the last tick per relative source and axis.
     pub weights: BTreeMap<String, [f64; 3]>,
     /// Height of the ground in the frame (0 at the take-off pose; uncertain once GNSS
     /// anchors the frame) and its variance: range heights are `z − terrain`.
     pub terrain: f64,
     pub terrain_var: f64,
+    /// Displacements accumulated in this tick (zero `covered`: none).
     rel: BTreeMap<String, RelAcc>,
-    abs: BTreeMap<String, (Vector3<f64>, Vector3<f64>)>,
-    heights: BTreeMap<String, (f64, f64)>,
+    /// Latest absolute position (z, var) per source in this tick.
+    abs: BTreeMap<String, Option<Absolute>>,
+    /// Latest height above the terrain (h, var) per range source in this tick.
+    heights: BTreeMap<String, Option<(f64, f64)>>,
 }
 
-/// Inverse-variance weights a_i = σ_i⁻² / Σσ⁻² and the fused variance 1 / Σσ⁻².
+/// Inverse-variance weights a_i = σ_i⁻² / Σσ⁻² and the fused variance 1 / Σσ⁻² (a
+/// non-positive or non-finite variance gets weight 0).
 pub fn weights(vars: &[f64]) -> (Vec<f64>, f64) {
-    let inv: Vec<f64> = vars
-        .iter()
-        .map(|&v| {
-            if v.is_finite() && v > 0.0 {
-                1.0 / v
-            } else {
-                0.0
-            }
-        })
-        .collect();
-    let sum: f64 = inv.iter().sum();
-    if sum <= 0.0 {
-        return (vec![0.0; vars.len()], f64::INFINITY);
+    let f = Fused::of(vars.iter().copied());
+    (vars.iter().map(|&v| f.weight(v)).collect(), f.variance())
+}
+
+/// Σσ⁻² of some estimates: their fused variance and each one's weight.
+#[derive(Clone, Copy)]
+struct Fused {
+    inverse_sum: f64,
+}
+
+impl Fused {
+    fn of(vars: impl Iterator<Item = f64>) -> Self {
+        Self {
+            inverse_sum: vars.map(inverse).sum(),
+        }
     }
-    (inv.iter().map(|w| w / sum).collect(), 1.0 / sum)
+
+    /// 1/Σσ⁻² (infinite when none has a weight).
+    fn variance(self) -> f64 {
+        if self.inverse_sum <= 0.0 {
+            f64::INFINITY
+        } else {
+            1.0 / self.inverse_sum
+        }
+    }
+
+    /// σ⁻² / Σσ⁻² of the estimate of variance `v` (0 when none has a weight).
+    fn weight(self, v: f64) -> f64 {
+        if self.inverse_sum <= 0.0 {
+            0.0
+        } else {
+            inverse(v) / self.inverse_sum
+        }
+    }
+}
+
+fn inverse(v: f64) -> f64 {
+    if v.is_finite() && v > 0.0 {
+        1.0 / v
+    } else {
+        0.0
+    }
 }
 
 impl Wrls {
@@ -80,21 +117,27 @@ impl Wrls {
         self.heights.clear();
     }
 
+    /// Add a relative displacement (already in the world frame) covering `dt` seconds.
     pub fn add_relative(&mut self, source: &str, delta: Vector3<f64>, var: Vector3<f64>, dt: f64) {
         if self.x.is_none() || !delta.iter().all(|v| v.is_finite()) {
             return;
         }
-        let acc = self.rel.entry(source.to_string()).or_default();
+        let acc = super::get_or_insert_with(&mut self.rel, source, || {
+            (source.to_string(), RelAcc::default())
+        });
         acc.delta += delta;
         acc.var += var;
         acc.covered += dt;
     }
 
+    /// Add an absolute position (world). NaN components (e.g. a height-only source) are
+    /// ignored on that axis.
     pub fn add_absolute(&mut self, source: &str, z: Vector3<f64>, var: Vector3<f64>) {
         if self.x.is_none() {
             return;
         }
-        self.abs.insert(source.to_string(), (z, var));
+        *super::get_or_insert_with(&mut self.abs, source, || (source.to_string(), None)) =
+            Some((z, var));
     }
 
     /// A height above the terrain (range finder), variance `var`.
@@ -102,9 +145,12 @@ impl Wrls {
         if self.x.is_none() || !h.is_finite() {
             return;
         }
-        self.heights.insert(source.to_string(), (h, var));
+        *super::get_or_insert_with(&mut self.heights, source, || (source.to_string(), None)) =
+            Some((h, var));
     }
 
+    /// The frame moved by an uncertain amount (covariance `s`): the position and the
+    /// terrain share the error.
     pub fn add_frame_uncertainty(&mut self, s: &Matrix3<f64>) {
         if self.x.is_some() {
             self.var += s.diagonal();
@@ -125,9 +171,30 @@ impl Wrls {
         }
     }
 
-    /// Run every tick that ends before `now`.
-    pub fn tick(&mut self, now: i64, period_us: i64, no_delta_var: f64) -> Vec<WrlsOutput> {
-        let mut out = vec![];
+    /// The absolute measurements of this tick, by source: the absolute positions, and
+    /// each range height as a z of terrain + h (in place of an absolute position of the
+    /// same source id).
+    fn absolutes(&self) -> impl Iterator<Item = Absolute> + '_ {
+        let heights = self.heights.iter().filter_map(|(src, h)| {
+            h.map(|(h, hv)| {
+                let z = Vector3::new(f64::NAN, f64::NAN, h + self.terrain);
+                let var = Vector3::new(f64::INFINITY, f64::INFINITY, hv + self.terrain_var);
+                (src.as_str(), (z, var))
+            })
+        });
+        let abs = self
+            .abs
+            .iter()
+            .filter(|(src, _)| !self.heights.get(*src).is_some_and(Option::is_some))
+            .filter_map(|(src, a)| a.map(|a| (src.as_str(), a)));
+        MergeBySource {
+            a: abs.peekable(),
+            b: heights.peekable(),
+        }
+    }
+
+    /// Run every tick that ends before `now`, appending each one's result to `out`.
+    pub fn tick(&mut self, now: i64, period_us: i64, no_delta_var: f64, out: &mut Vec<WrlsOutput>) {
         let period_us = period_us.max(1);
         while let (Some(t0), Some(x)) = (self.t, self.x) {
             let t1 = t0 + period_us;
@@ -135,71 +202,85 @@ impl Wrls {
                 break;
             }
             let period = period_us as f64 * 1e-6;
-            let rel = std::mem::take(&mut self.rel);
-            let mut abs = std::mem::take(&mut self.abs);
-            let heights = std::mem::take(&mut self.heights);
-            // Terrain datum: an absolute height (GNSS) and a height above ground together
-            // measure the ground's height in the frame.
-            for (h, hv) in heights.values() {
-                for (z, var) in abs.values() {
+            // Terrain from each range height against each absolute z.
+            for (h, hv) in self.heights.values().flatten() {
+                for (z, var) in self.abs.values().flatten() {
                     if z[2].is_finite() && var[2].is_finite() && var[2] > 0.0 {
-                        let (w, v) = weights(&[self.terrain_var, var[2] + hv]);
-                        if v.is_finite() {
-                            self.terrain = w[0] * self.terrain + w[1] * (z[2] - h);
-                            self.terrain_var = v;
+                        let f = Fused::of([self.terrain_var, var[2] + hv].into_iter());
+                        if f.variance().is_finite() {
+                            self.terrain = f.weight(self.terrain_var) * self.terrain
+                                + f.weight(var[2] + hv) * (z[2] - h);
+                            self.terrain_var = f.variance();
                         }
                     }
                 }
             }
-            for (src, (h, hv)) in &heights {
-                abs.insert(
-                    src.clone(),
-                    (
-                        Vector3::new(f64::NAN, f64::NAN, h + self.terrain),
-                        Vector3::new(f64::INFINITY, f64::INFINITY, hv + self.terrain_var),
-                    ),
-                );
-            }
-            let mut delta = Vector3::zeros();
-            let mut dvar = Vector3::zeros();
-            self.weights.clear();
-            for axis in 0..3 {
-                let items: Vec<(&String, f64, f64)> = rel
+            // The relative sources' displacements, each scaled to the tick.
+            let scaled = |axis: usize| {
+                self.rel
                     .iter()
                     .filter(|(_, a)| a.covered > 0.0)
-                    .map(|(s, a)| {
+                    .map(move |(s, a)| {
                         let k = period / a.covered;
                         (s, a.delta[axis] * k, a.var[axis] * k * k)
                     })
-                    .collect();
-                let vars: Vec<f64> = items.iter().map(|i| i.2).collect();
-                let (w, v) = weights(&vars);
-                if v.is_finite() {
-                    delta[axis] = items.iter().zip(&w).map(|(i, w)| i.1 * w).sum();
-                    dvar[axis] = v;
+            };
+            let mut delta = Vector3::zeros();
+            let mut dvar = Vector3::zeros();
+            for axis in 0..3 {
+                let f = Fused::of(scaled(axis).map(|i| i.2));
+                if f.variance().is_finite() {
+                    delta[axis] = scaled(axis).map(|i| i.1 * f.weight(i.2)).sum();
+                    dvar[axis] = f.variance();
                 } else {
                     dvar[axis] = no_delta_var * period;
                 }
-                for (i, w) in items.iter().zip(&w) {
-                    self.weights.entry(i.0.clone()).or_insert([0.0; 3])[axis] = *w;
+            }
+            // Every relative source of this tick has a weight on each axis; the others
+            // are dropped.
+            let rel = &self.rel;
+            self.weights
+                .retain(|s, _| rel.get(s).is_some_and(|a| a.covered > 0.0));
+            for axis in 0..3 {
+                let f = Fused::of(scaled(axis).map(|i| i.2));
+                for (s, _, var) in scaled(axis) {
+                    let w = f.weight(var);
+                    match self.weights.get_mut(s) {
+                        Some(ws) => ws[axis] = w,
+                        None => {
+                            let mut ws = [0.0; 3];
+                            ws[axis] = w;
+                            self.weights.insert(s.clone(), ws);
+                        }
+                    }
                 }
             }
+            // The prediction and the absolute measurements, by the same rule.
             let mut xp = x + delta;
             let mut vp = self.var + dvar;
             for axis in 0..3 {
-                let mut vars = vec![vp[axis]];
-                let mut vals = vec![xp[axis]];
-                for (z, var) in abs.values() {
-                    if z[axis].is_finite() && var[axis].is_finite() && var[axis] > 0.0 {
-                        vars.push(var[axis]);
-                        vals.push(z[axis]);
-                    }
+                let predicted = (xp[axis], vp[axis]);
+                let usable = |(z, var): Absolute| {
+                    (z[axis].is_finite() && var[axis].is_finite() && var[axis] > 0.0)
+                        .then_some((z[axis], var[axis]))
+                };
+                let items =
+                    || std::iter::once(predicted).chain(self.absolutes().filter_map(usable));
+                let f = Fused::of(items().map(|i| i.1));
+                if f.variance().is_finite() {
+                    xp[axis] = items().map(|(z, var)| z * f.weight(var)).sum();
+                    vp[axis] = f.variance();
                 }
-                let (w, v) = weights(&vars);
-                if v.is_finite() {
-                    xp[axis] = vals.iter().zip(&w).map(|(z, w)| z * w).sum();
-                    vp[axis] = v;
-                }
+            }
+            // This tick's measurements are used: the sources stay, empty.
+            for acc in self.rel.values_mut() {
+                *acc = RelAcc::default();
+            }
+            for a in self.abs.values_mut() {
+                *a = None;
+            }
+            for h in self.heights.values_mut() {
+                *h = None;
             }
             self.x = Some(xp);
             self.var = vp;
@@ -213,7 +294,34 @@ impl Wrls {
                 delta,
             });
         }
-        out
+    }
+}
+
+/// Two iterators sorted by source id, merged in that order (the order a map of both
+/// would iterate; ids do not repeat between them).
+struct MergeBySource<'a, A, B, T>
+where
+    A: Iterator<Item = (&'a str, T)>,
+    B: Iterator<Item = (&'a str, T)>,
+{
+    a: std::iter::Peekable<A>,
+    b: std::iter::Peekable<B>,
+}
+
+impl<'a, A, B, T> Iterator for MergeBySource<'a, A, B, T>
+where
+    A: Iterator<Item = (&'a str, T)>,
+    B: Iterator<Item = (&'a str, T)>,
+{
+    type Item = T;
+
+    fn next(&mut self) -> Option<T> {
+        let take_a = match (self.a.peek(), self.b.peek()) {
+            (Some((sa, _)), Some((sb, _))) => sa < sb,
+            (Some(_), None) => true,
+            (None, _) => false,
+        };
+        if take_a { self.a.next() } else { self.b.next() }.map(|(_, t)| t)
     }
 }
 
@@ -247,7 +355,8 @@ mod tests {
             Vector3::repeat(4e-6),
             0.02,
         );
-        let out = f.tick(20_001, 20_000, 1.0);
+        let mut out = Vec::new();
+        f.tick(20_001, 20_000, 1.0, &mut out);
         assert_eq!(out.len(), 1);
         assert!((out[0].delta.x - (0.8 * 0.02 + 0.2 * 0.04)).abs() < 1e-12);
         assert!((out[0].var.x - (1e-4 + 0.8e-6)).abs() < 1e-15);
@@ -256,7 +365,7 @@ mod tests {
         let v = f.var.x;
         let x = f.x.expect("initialised").x;
         f.add_absolute("gps", Vector3::new(1.0, 0.0, 0.0), Vector3::repeat(v));
-        f.tick(40_001, 20_000, 0.0);
+        f.tick(40_001, 20_000, 0.0, &mut out);
         let x2 = f.x.expect("initialised").x;
         assert!((x2 - (x + 1.0) / 2.0).abs() < 1e-9, "{x2}");
     }
