@@ -103,15 +103,28 @@ pub fn push_fixed(out: &mut String, v: f64, digits: u32) {
         out.push('-');
     }
     // Both parts fit 64 bits (below 1e15, and below 10^9).
-    let _ = write!(out, "{}", (scaled / scale) as u64);
+    push_decimal(out, (scaled / scale) as u64, 1);
     if digits > 0 {
-        let _ = write!(
-            out,
-            ".{:0width$}",
-            (scaled % scale) as u64,
-            width = digits as usize
-        );
+        out.push('.');
+        push_decimal(out, (scaled % scale) as u64, digits as usize);
     }
+}
+
+/// Appends `n` in decimal, zero-padded to `width` (at most 20) digits: what `write!`
+/// of `{n:0width$}` gives, without the formatter's machinery (a third of `push_fixed`).
+fn push_decimal(out: &mut String, mut n: u64, width: usize) {
+    let mut buf = [b'0'; 20];
+    let mut start = buf.len();
+    loop {
+        start -= 1;
+        buf[start] = b'0' + (n % 10) as u8;
+        n /= 10;
+        if n == 0 {
+            break;
+        }
+    }
+    let start = start.min(buf.len() - width.min(buf.len()));
+    out.push_str(std::str::from_utf8(&buf[start..]).unwrap_or_default());
 }
 
 impl Trajectory {
@@ -640,6 +653,17 @@ mod tests {
                 let mut s = String::new();
                 push_fixed(&mut s, v, digits);
                 assert_eq!(s, format!("{v:.*}", digits as usize), "{v:e} {digits}");
+            }
+        }
+    }
+
+    #[test]
+    fn decimal_digits_are_the_formatters_zero_padded() {
+        for n in [0, 7, 10, 99, 1_000_000_000, 123_456_789_012, u64::MAX] {
+            for width in [1, 2, 6, 9, 20] {
+                let mut s = String::from("x");
+                push_decimal(&mut s, n, width);
+                assert_eq!(s, format!("x{n:0width$}"), "{n} {width}");
             }
         }
     }

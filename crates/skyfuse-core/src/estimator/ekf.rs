@@ -15,7 +15,7 @@
 //! information, as they should.
 
 pub use super::measurement::{Measurement, MAX_ROWS};
-use nalgebra::{Cholesky, DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{Cholesky, Const, DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3};
 
 /// Standard gravity, m/s².
 pub const GRAVITY: f64 = 9.806_65;
@@ -222,70 +222,99 @@ impl Ekf {
         force: bool,
     ) -> UpdateOutcome {
         let n = self.n();
+        with_scratch(2 * n * M, |scratch| {
+            let (pht, k) = scratch.split_at_mut(n * M);
+            let (out, chol) = self.test_rows::<M>(m, gate, force, pht);
+            let Some(chol) = chol.filter(|_| out.accepted) else {
+                return out;
+            };
+            let y = SVector::<f64, M>::from_fn(|i, _| m.innovation()[i]);
+            // K = P Hᵀ S⁻¹, row j of it S⁻¹ (H P)[:, j] (S and P symmetric).
+            for j in 0..n {
+                let mut row = SVector::<f64, M>::from_fn(|c, _| pht[c * n + j]);
+                chol.solve_mut(&mut row);
+                for c in 0..M {
+                    k[c * n + j] = row[c];
+                }
+            }
+            // x += K y, summed by K's columns.
+            let x = self.x.as_mut_slice();
+            for (j, xj) in x.iter_mut().enumerate() {
+                let mut dx = k[j] * y[0];
+                for c in 1..M {
+                    dx += k[c * n + j] * y[c];
+                }
+                *xj += dx;
+            }
+            // P ← P − K H P: with the optimal gain this is the Joseph form
+            // (I − KH) P (I − KH)ᵀ + K R Kᵀ, at O(n² m) instead of three n³
+            // products; symmetrising and the variance floor keep it well formed, as
+            // in EKF2. (H P)[c, j] is (P Hᵀ)[j, c].
+            let p = self.p.as_mut_slice();
+            for (j, column) in p.chunks_exact_mut(n).enumerate() {
+                for c in 0..M {
+                    let hp = pht[c * n + j];
+                    let kc = &k[c * n..(c + 1) * n];
+                    for (pij, kic) in column.iter_mut().zip(kc) {
+                        *pij -= kic * hp;
+                    }
+                }
+            }
+            self.symmetrise();
+            out
+        })
+    }
+
+    /// The gate test of an `M`-row measurement, the state untouched: the outcome (the
+    /// update would go in when it says accepted) and S's Cholesky factor (None when S
+    /// is not positive definite); P·Hᵀ is left in `pht` (n×M).
+    fn test_rows<const M: usize>(
+        &self,
+        m: &Measurement,
+        gate: f64,
+        force: bool,
+        pht: &mut [f64],
+    ) -> (UpdateOutcome, Option<Cholesky<f64, Const<M>>>) {
+        let n = self.n();
         assert!(
             m.max_state().is_none_or(|s| s < n),
             "the measurement reads a state the filter does not have"
         );
-        with_scratch(2 * n * M, |scratch| {
-            let (pht, k) = scratch.split_at_mut(n * M);
-            self.p_ht::<M>(m, pht);
-            let s = innovation_cov::<M>(m, pht, n);
-            let y = SVector::<f64, M>::from_fn(|i, _| m.innovation()[i]);
-            let mut out = UpdateOutcome {
-                rows: M,
-                innovation: [0.0; MAX_ROWS],
-                innovation_var: [0.0; MAX_ROWS],
-                nis: f64::INFINITY,
-                test_ratio: f64::INFINITY,
-                accepted: false,
-            };
-            out.innovation[..M].copy_from_slice(m.innovation());
-            for i in 0..M {
-                out.innovation_var[i] = s[(i, i)];
-            }
-            let Some(chol) = Cholesky::new(s) else {
-                return out;
-            };
-            let s_inv_y = chol.solve(&y);
-            out.nis = dot(y.as_slice(), s_inv_y.as_slice());
-            out.test_ratio = if gate > 0.0 { out.nis / gate } else { 0.0 };
-            out.accepted = out.nis.is_finite() && (force || out.test_ratio <= 1.0);
-            if out.accepted {
-                // K = P Hᵀ S⁻¹, row j of it S⁻¹ (H P)[:, j] (S and P symmetric).
-                for j in 0..n {
-                    let mut row = SVector::<f64, M>::from_fn(|c, _| pht[c * n + j]);
-                    chol.solve_mut(&mut row);
-                    for c in 0..M {
-                        k[c * n + j] = row[c];
-                    }
-                }
-                // x += K y, summed by K's columns.
-                let x = self.x.as_mut_slice();
-                for (j, xj) in x.iter_mut().enumerate() {
-                    let mut dx = k[j] * y[0];
-                    for c in 1..M {
-                        dx += k[c * n + j] * y[c];
-                    }
-                    *xj += dx;
-                }
-                // P ← P − K H P: with the optimal gain this is the Joseph form
-                // (I − KH) P (I − KH)ᵀ + K R Kᵀ, at O(n² m) instead of three n³
-                // products; symmetrising and the variance floor keep it well formed, as
-                // in EKF2. (H P)[c, j] is (P Hᵀ)[j, c].
-                let p = self.p.as_mut_slice();
-                for (j, column) in p.chunks_exact_mut(n).enumerate() {
-                    for c in 0..M {
-                        let hp = pht[c * n + j];
-                        let kc = &k[c * n..(c + 1) * n];
-                        for (pij, kic) in column.iter_mut().zip(kc) {
-                            *pij -= kic * hp;
-                        }
-                    }
-                }
-                self.symmetrise();
-            }
-            out
-        })
+        self.p_ht::<M>(m, pht);
+        let s = innovation_cov::<M>(m, pht, n);
+        let mut out = UpdateOutcome {
+            rows: M,
+            innovation: [0.0; MAX_ROWS],
+            innovation_var: [0.0; MAX_ROWS],
+            nis: f64::INFINITY,
+            test_ratio: f64::INFINITY,
+            accepted: false,
+        };
+        out.innovation[..M].copy_from_slice(m.innovation());
+        for i in 0..M {
+            out.innovation_var[i] = s[(i, i)];
+        }
+        let Some(chol) = Cholesky::new(s) else {
+            return (out, None);
+        };
+        let y = SVector::<f64, M>::from_fn(|i, _| m.innovation()[i]);
+        out.nis = dot(y.as_slice(), chol.solve(&y).as_slice());
+        out.test_ratio = if gate > 0.0 { out.nis / gate } else { 0.0 };
+        out.accepted = out.nis.is_finite() && (force || out.test_ratio <= 1.0);
+        (out, Some(chol))
+    }
+
+    /// What [`Self::update`] would say of `m` (its innovation, variances, test ratio,
+    /// acceptance), the state untouched: a source health has taken out is still tested.
+    pub fn innovation_test(&self, m: &Measurement, gate: f64) -> UpdateOutcome {
+        fn test<const M: usize>(ekf: &Ekf, m: &Measurement, gate: f64) -> UpdateOutcome {
+            with_scratch(ekf.n() * M, |pht| ekf.test_rows::<M>(m, gate, false, pht).0)
+        }
+        match m.rows() {
+            1 => test::<1>(self, m, gate),
+            2 => test::<2>(self, m, gate),
+            _ => test::<3>(self, m, gate),
+        }
     }
 
     /// `P·Hᵀ` (n×M, column-major, into `out`) over H's non-zero entries: column i is
@@ -427,23 +456,7 @@ impl Ekf {
     /// The normalised innovation test ratio a measurement would get (NIS / gate), without
     /// updating: infinite when S is singular.
     pub fn test_ratio(&self, m: &Measurement, gate: f64) -> f64 {
-        fn ratio<const M: usize>(ekf: &Ekf, m: &Measurement, gate: f64) -> f64 {
-            let n = ekf.n();
-            with_scratch(n * M, |pht| {
-                ekf.p_ht::<M>(m, pht);
-                let y = SVector::<f64, M>::from_fn(|i, _| m.innovation()[i]);
-                match Cholesky::new(innovation_cov::<M>(m, pht, n)) {
-                    Some(chol) if gate > 0.0 => dot(y.as_slice(), chol.solve(&y).as_slice()) / gate,
-                    Some(_) => 0.0,
-                    None => f64::INFINITY,
-                }
-            })
-        }
-        match m.rows() {
-            1 => ratio::<1>(self, m, gate),
-            2 => ratio::<2>(self, m, gate),
-            _ => ratio::<3>(self, m, gate),
-        }
+        self.innovation_test(m, gate).test_ratio
     }
 
     /// Set the terrain height (a terrain reset): uncorrelated with the rest, variance

@@ -343,8 +343,7 @@ impl Core {
         let Some(ekf) = self.ekf.as_ref() else {
             return;
         };
-        // The gate test alone: what the update would have said, the state untouched.
-        let out = ekf.clone().update(&m, ctx.gate(m.rows()), false);
+        let out = ekf.innovation_test(&m, ctx.gate(m.rows()));
         let st = self.stat(source);
         st.count_test(t, out.test_ratio);
         st.kind = kind;
