@@ -486,7 +486,8 @@ impl TopicFile {
     /// A ULog topic's rows (0 for a CSV file: not counted before it is read).
     fn ulog_rows(&self) -> usize {
         match &self.data {
-            TopicData::Ulog { columns, .. } => columns.first().map_or(0, Vec::len),
+            // The columns not read are empty: the longest is the row count.
+            TopicData::Ulog { columns, .. } => columns.iter().map(Vec::len).max().unwrap_or(0),
             TopicData::Csv { .. } => 0,
         }
     }
@@ -592,8 +593,10 @@ fn ulog_topic_files(file: &Path) -> Result<Vec<TopicFile>, Px4LogError> {
         file: file.to_path_buf(),
         reason: "the path is not UTF-8".into(),
     })?;
-    // (topic, instance) → (TOPICS index, field names, columns); by message id.
-    type Columns = (usize, u8, Vec<String>, Vec<Vec<f64>>);
+    // (topic, instance) → (TOPICS index, field names, columns, the fields kept); by
+    // message id. Only the fields the topic's mapper reads are kept (the others' columns
+    // stay empty and read as NaN): a third of an IMU topic's, most of an estimator's.
+    type Columns = (usize, u8, Vec<String>, Vec<Vec<f64>>, Vec<bool>);
     let mut by_id: Vec<Option<Columns>> = Vec::new();
     let mut unwanted: Vec<bool> = Vec::new();
     let mut collect = |m: &Message| {
@@ -617,21 +620,25 @@ fn ulog_topic_files(file: &Path) -> Result<Vec<TopicFile>, Px4LogError> {
                         unwanted[id] = true;
                         return SimpleCallbackResult::KeepReading;
                     };
-                    let names = format
+                    let names: Vec<String> = format
                         .fields
                         .iter()
                         .map(|f| f.flattened_field_name.clone())
                         .collect();
+                    let keep = fields_read(TOPICS[ti].2, file, &names);
                     slot.insert((
                         ti,
                         d.multi_id.value(),
                         names,
                         vec![Vec::new(); format.fields.len()],
+                        keep,
                     ))
                 }
             };
-            for (col, field) in entry.3.iter_mut().zip(&format.fields) {
-                col.push(ulog_field(d.data, field));
+            for ((col, field), keep) in entry.3.iter_mut().zip(&format.fields).zip(&entry.4) {
+                if *keep {
+                    col.push(ulog_field(d.data, field));
+                }
             }
         }
         SimpleCallbackResult::KeepReading
@@ -650,12 +657,11 @@ fn ulog_topic_files(file: &Path) -> Result<Vec<TopicFile>, Px4LogError> {
         reason: e.to_string(),
     })?;
     let mut files = Vec::new();
-    for (ti, multi, names, columns) in by_id.into_iter().flatten() {
+    for (ti, multi, names, columns, _) in by_id.into_iter().flatten() {
         let name = TOPICS[ti].0;
         let inst = u32::from(multi);
         let mut cols: Vec<(String, Vec<f64>)> = names.into_iter().zip(columns).collect();
-        // `timestamp` first, the rest by name: a stable header.
-        cols.sort_by(|a, b| (a.0 != "timestamp", &a.0).cmp(&(b.0 != "timestamp", &b.0)));
+        sort_header(&mut cols, |c| &c.0);
         let (header, columns) = cols.into_iter().unzip();
         files.push(TopicFile {
             path: file.to_path_buf(),
@@ -674,6 +680,30 @@ fn ulog_topic_files(file: &Path) -> Result<Vec<TopicFile>, Px4LogError> {
     }
     name_sources(&mut files);
     Ok(files)
+}
+
+/// `timestamp` first, the rest by name: a ULog topic's stable header.
+fn sort_header<T>(fields: &mut [T], name: impl Fn(&T) -> &String) {
+    fields.sort_by(|a, b| {
+        let (a, b) = (name(a), name(b));
+        (a != "timestamp", a).cmp(&(b != "timestamp", b))
+    });
+}
+
+/// Which of a ULog topic's fields (`names`, in message order) the mapper of `kind`
+/// reads; all of them when it cannot map the topic (its error is reported later, with
+/// the whole header).
+fn fields_read(kind: Kind, file: &Path, names: &[String]) -> Vec<bool> {
+    let mut header: Vec<&String> = names.iter().collect();
+    sort_header(&mut header, |n| n);
+    let header: Vec<String> = header.into_iter().cloned().collect();
+    match Mapper::columns_read(kind, file, &header) {
+        Some(read) => names
+            .iter()
+            .map(|n| header.iter().position(|h| h == n).is_some_and(|i| read[i]))
+            .collect(),
+        None => vec![true; names.len()],
+    }
 }
 
 /// One field of a ULog data message as a number (NaN if the message is too short).
@@ -1157,9 +1187,19 @@ impl Row<'_> {
 struct Cols<'a> {
     file: &'a Path,
     header: &'a [String],
+    /// Every column looked up, by index (a mapper reads only these).
+    read: std::cell::RefCell<Vec<bool>>,
 }
 
-impl Cols<'_> {
+impl<'a> Cols<'a> {
+    fn new(file: &'a Path, header: &'a [String]) -> Self {
+        Self {
+            file,
+            header,
+            read: std::cell::RefCell::new(vec![false; header.len()]),
+        }
+    }
+
     fn get(&self, name: &str) -> Result<usize, Px4LogError> {
         self.opt(name).ok_or_else(|| Px4LogError::MissingColumn {
             file: self.file.to_path_buf(),
@@ -1168,7 +1208,9 @@ impl Cols<'_> {
     }
 
     fn opt(&self, name: &str) -> Option<usize> {
-        self.header.iter().position(|h| h == name)
+        let i = self.header.iter().position(|h| h == name)?;
+        self.read.borrow_mut()[i] = true;
+        Some(i)
     }
 
     fn arr<const N: usize>(&self, name: &str) -> Result<[usize; N], Px4LogError> {

@@ -806,6 +806,57 @@ fn vio_covariances_and_world_frame_velocity_convert() {
     assert_eq!((o.reset_counter, o.quality), (Some(7), Some(-1)));
 }
 
+/// A ULog topic keeps only the fields its mapper reads (PX4 1.14's sensor_combined, in
+/// message order); a topic the mapper cannot read keeps them all, for its error.
+#[test]
+fn a_ulog_topic_keeps_the_fields_its_mapper_reads() {
+    let names: Vec<String> = [
+        "timestamp",
+        "gyro_rad[0]",
+        "gyro_rad[1]",
+        "gyro_rad[2]",
+        "gyro_integral_dt",
+        "accelerometer_timestamp_relative",
+        "accelerometer_m_s2[0]",
+        "accelerometer_m_s2[1]",
+        "accelerometer_m_s2[2]",
+        "accelerometer_integral_dt",
+        "accelerometer_clipping",
+        "gyro_clipping",
+        "accel_calibration_count",
+        "gyro_calibration_count",
+    ]
+    .map(String::from)
+    .to_vec();
+    let file = Path::new("flight.ulg");
+    let keep = fields_read(Kind::SensorCombined, file, &names);
+    let kept: Vec<&str> = names
+        .iter()
+        .zip(&keep)
+        .filter(|(_, k)| **k)
+        .map(|(n, _)| n.as_str())
+        .collect();
+    for n in [
+        "timestamp",
+        "gyro_rad[0]",
+        "gyro_rad[2]",
+        "accelerometer_m_s2[1]",
+    ] {
+        assert!(kept.contains(&n), "{n} dropped: {kept:?}");
+    }
+    for n in ["accelerometer_clipping", "gyro_calibration_count"] {
+        assert!(!kept.contains(&n), "{n} kept: {kept:?}");
+    }
+    let no_gyro: Vec<String> = names
+        .iter()
+        .filter(|n| !n.starts_with("gyro_rad"))
+        .cloned()
+        .collect();
+    assert!(fields_read(Kind::SensorCombined, file, &no_gyro)
+        .iter()
+        .all(|k| *k));
+}
+
 #[test]
 #[ignore = "timing; run with --ignored --nocapture"]
 fn time_real_read() {

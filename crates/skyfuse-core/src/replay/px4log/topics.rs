@@ -160,7 +160,28 @@ impl Mapper {
     }
 
     pub(super) fn new(kind: Kind, file: &Path, header: &[String]) -> Result<Self, Px4LogError> {
-        let h = Cols { file, header };
+        Self::with_columns(kind, file, header).map(|(m, _)| m)
+    }
+
+    /// The columns a mapper of `kind` reads from `header` (true at their index): the
+    /// rest need not be kept.
+    pub(super) fn columns_read(kind: Kind, file: &Path, header: &[String]) -> Option<Vec<bool>> {
+        Self::with_columns(kind, file, header)
+            .ok()
+            .map(|(_, read)| read)
+    }
+
+    fn with_columns(
+        kind: Kind,
+        file: &Path,
+        header: &[String],
+    ) -> Result<(Self, Vec<bool>), Px4LogError> {
+        let h = Cols::new(file, header);
+        let mapper = Self::from_cols(kind, &h)?;
+        Ok((mapper, h.read.into_inner()))
+    }
+
+    fn from_cols(kind: Kind, h: &Cols<'_>) -> Result<Self, Px4LogError> {
         let t = h.get("timestamp")?;
         Ok(match kind {
             Kind::Attitude => Mapper::Attitude(AttitudeCols {
