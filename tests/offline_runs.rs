@@ -52,7 +52,7 @@ fn replay(
     };
     run_replay(
         name,
-        samples,
+        &samples,
         EstimatorConfig::default(),
         HealthConfig::default(),
         &opts,

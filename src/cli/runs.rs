@@ -2,6 +2,7 @@
 //! progress bars on a terminal and the scores printed as a table.
 
 use super::*;
+use crate::replay::px4log;
 
 pub(super) fn parse_window(s: &str) -> Result<(f64, f64), String> {
     let (a, b) = s
@@ -247,6 +248,7 @@ pub(super) fn replay(
     let is_tlog = name.ends_with(".tlog") || name.ends_with(".tlog.gz");
     let mut t0_us = None;
     let mut live_poses = Vec::new();
+    let mut streamed = None;
     let mut c = c.clone();
     let samples = if let Some(file) = mcap_file(path)? {
         let log =
@@ -297,24 +299,28 @@ pub(super) fn replay(
             );
         }
         log.samples
+    } else if path.is_dir() {
+        let log =
+            px4log::read_dir_with_progress(path, &mut on_progress).map_err(|e| e.to_string())?;
+        report_px4_read(&log.topics, &log.stand_ins, &log.missing);
+        log.samples
     } else {
-        let log = crate::replay::px4log::read_path_with_progress(path, &mut on_progress)
-            .map_err(|e| e.to_string())?;
-        for t in &log.topics {
-            match &t.first_error {
-                Some(e) => {
-                    tracing::warn!(topic = %t.name, source = %t.source, rows = t.rows, skipped = t.skipped, "read; first problem: {e}")
-                }
-                None => tracing::info!(topic = %t.name, source = %t.source, rows = t.rows, "read"),
+        // A ULog is streamed where it can be: its samples made as the replay reaches
+        // them, never all in memory (an hour of a 1 kHz log is four million).
+        match px4log::read_ulog_for_replay(path, &mut on_progress).map_err(|e| e.to_string())? {
+            px4log::UlogRead::Whole(log) => {
+                report_px4_read(&log.topics, &log.stand_ins, &log.missing);
+                log.samples
+            }
+            px4log::UlogRead::Streamed(log) => {
+                streamed = Some(log);
+                Vec::new()
             }
         }
-        for s in &log.stand_ins {
-            println!("stand-in: {s}");
-        }
-        for m in &log.missing {
-            println!("missing: {m}");
-        }
-        log.samples
+    };
+    let source: &dyn offline::SampleSource = match &streamed {
+        Some(log) => log,
+        None => &samples,
     };
     let mut bar = Progress::new("replaying");
     let opts = offline::ReplayOptions {
@@ -325,7 +331,7 @@ pub(super) fn replay(
     };
     let summary = offline::run_replay(
         &path.display().to_string(),
-        &samples,
+        source,
         cfg,
         c.health.clone(),
         &opts,
@@ -333,6 +339,9 @@ pub(super) fn replay(
         &mut |f| bar.update(f),
     )
     .map_err(|e| e.to_string())?;
+    if let Some(log) = &streamed {
+        report_px4_read(&log.take_topics(), &log.stand_ins(), &log.missing);
+    }
     println!(
         "replayed {} samples ({}) -> {}",
         summary.samples,
@@ -384,6 +393,24 @@ pub(super) fn replay(
         );
     }
     Ok(())
+}
+
+/// What a PX4 log's topics gave, what stood in for absent ones, what is missing.
+fn report_px4_read(topics: &[px4log::TopicSummary], stand_ins: &[String], missing: &[String]) {
+    for t in topics {
+        match &t.first_error {
+            Some(e) => {
+                tracing::warn!(topic = %t.name, source = %t.source, rows = t.rows, skipped = t.skipped, "read; first problem: {e}")
+            }
+            None => tracing::info!(topic = %t.name, source = %t.source, rows = t.rows, "read"),
+        }
+    }
+    for s in stand_ins {
+        println!("stand-in: {s}");
+    }
+    for m in missing {
+        println!("missing: {m}");
+    }
 }
 
 /// The MCAP file to replay: `path` itself, or the one `.mcap` in a rosbag2 directory.

@@ -584,23 +584,86 @@ fn event_time(line: &str) -> f64 {
         .unwrap_or(0.0)
 }
 
-/// The inputs of a recording: each source with its kind and mean rate.
-fn replay_inputs(samples: &[Sample]) -> InputList {
-    let mut seen: BTreeMap<&str, (SensorKind, usize, i64, i64)> = BTreeMap::new();
-    for s in samples {
+/// What a replay needs to know of its samples before fusing them: each source's kind,
+/// count and first and last time (its mean rate), the autopilot-state sources, and the
+/// first sample's stamp.
+#[derive(Default)]
+struct SampleSurvey {
+    /// Per source: its first sample's kind, count, first and last time.
+    sources: BTreeMap<String, (SensorKind, usize, i64, i64)>,
+    /// Per source: its last sample's kind (what `--sources` matches a kind against).
+    last_kind: BTreeMap<String, SensorKind>,
+    vehicle_state: std::collections::BTreeSet<String>,
+    first_stamp: Option<Option<i64>>,
+    samples: usize,
+}
+
+impl SampleSurvey {
+    fn of(samples: &dyn SampleSource) -> Self {
+        let mut survey = Self::default();
+        samples.for_each(&mut |s| survey.add(s));
+        survey
+    }
+
+    fn add(&mut self, s: &Sample) {
+        self.samples += 1;
+        self.first_stamp.get_or_insert(s.stamp_us);
         let t = s.stamp_us.unwrap_or(s.arrival_us);
-        let e = seen
-            .entry(s.source.as_ref())
-            .or_insert((s.data.kind(), 0, t, t));
+        let e = crate::estimator::get_or_insert_with(&mut self.sources, s.source.as_ref(), || {
+            (s.source.to_string(), (s.data.kind(), 0, t, t))
+        });
         e.1 += 1;
         e.3 = t;
+        *crate::estimator::get_or_insert_with(&mut self.last_kind, s.source.as_ref(), || {
+            (s.source.to_string(), s.data.kind())
+        }) = s.data.kind();
+        if s.data.kind() == SensorKind::VehicleState
+            && !self.vehicle_state.contains(s.source.as_ref())
+        {
+            self.vehicle_state.insert(s.source.to_string());
+        }
     }
-    seen.into_iter()
-        .map(|(id, (kind, n, first, last))| {
-            let span = ((last - first) as f64 * 1e-6).max(1e-3);
-            InputSpec::new(id, kind, (n as f64 / span).max(0.1))
-        })
-        .collect()
+
+    /// The inputs of a recording: each source with its kind and mean rate.
+    fn inputs(&self) -> InputList {
+        self.sources
+            .iter()
+            .map(|(id, &(kind, n, first, last))| {
+                let span = ((last - first) as f64 * 1e-6).max(1e-3);
+                InputSpec::new(id, kind, (n as f64 / span).max(0.1))
+            })
+            .collect()
+    }
+}
+
+/// Samples a replay reads, in time order: a slice in memory, or a log that makes them
+/// as they are read (`replay::px4log::UlogSamples`). Read twice: once to survey them,
+/// once to fuse.
+pub trait SampleSource {
+    /// Calls `f` with every sample, in time order.
+    fn for_each(&self, f: &mut dyn FnMut(&Sample));
+    /// How many samples there are, or about (for progress).
+    fn len_hint(&self) -> usize;
+}
+
+impl SampleSource for &[Sample] {
+    fn for_each(&self, f: &mut dyn FnMut(&Sample)) {
+        self.iter().for_each(f);
+    }
+
+    fn len_hint(&self) -> usize {
+        self.len()
+    }
+}
+
+impl SampleSource for Vec<Sample> {
+    fn for_each(&self, f: &mut dyn FnMut(&Sample)) {
+        self.iter().for_each(f);
+    }
+
+    fn len_hint(&self) -> usize {
+        self.len()
+    }
 }
 
 /// Replay recorded samples (time-ordered) through the estimator. Sources not in
@@ -623,7 +686,7 @@ pub struct ReplayOptions {
 
 pub fn run_replay(
     input_name: &str,
-    samples: &[Sample],
+    samples: &dyn SampleSource,
     mut cfg: EstimatorConfig,
     health: HealthConfig,
     opts: &ReplayOptions,
@@ -631,45 +694,37 @@ pub fn run_replay(
     progress: &mut dyn FnMut(f64),
 ) -> Result<Summary, OfflineError> {
     let window = opts.window;
+    let survey = SampleSurvey::of(samples);
     if let Some(list) = &opts.fuse {
-        // A source id (`flow_1`), or a sensor kind (`flow`: every flow sensor).
-        let ids: std::collections::BTreeMap<&str, SensorKind> = samples
-            .iter()
-            .map(|s| (s.source.as_ref(), s.data.kind()))
-            .collect();
-        // The autopilot's armed/landed state is not a sensor under comparison: it is
-        // used whenever the log has it, as the service uses EXTENDED_SYS_STATE.
-        let state_ids: std::collections::BTreeSet<&str> = samples
-            .iter()
-            .filter(|s| s.data.kind() == SensorKind::VehicleState)
-            .map(|s| s.source.as_ref())
-            .collect();
-        for (id, kind) in ids {
-            cfg.sources.entry(id.to_string()).or_default().fuse =
-                list.iter().any(|l| l == id || l == kind.as_str()) || state_ids.contains(id);
+        // A source id (`flow_1`), or a sensor kind (`flow`: every flow sensor). The
+        // autopilot's armed/landed state is not a sensor under comparison: it is used
+        // whenever the log has it, as the service uses EXTENDED_SYS_STATE.
+        for (id, kind) in &survey.last_kind {
+            cfg.sources.entry(id.clone()).or_default().fuse =
+                list.iter().any(|l| l == id || l == kind.as_str())
+                    || survey.vehicle_state.contains(id);
         }
     }
     let mode = cfg.mode;
-    let mut fusion = Fusion::new(cfg, health, &replay_inputs(samples));
-    let t0 = opts
-        .t0_us
-        .or_else(|| samples.first().and_then(|s| s.stamp_us))
-        .unwrap_or(0);
+    let mut fusion = Fusion::new(cfg, health, &survey.inputs());
+    let t0 = opts.t0_us.or(survey.first_stamp.flatten()).unwrap_or(0);
     let mut rec = Recorder::new(t0);
-    let n = samples.len().max(1);
-    for (i, s) in samples.iter().enumerate() {
+    let n = samples.len_hint().max(1);
+    let mut i = 0;
+    samples.for_each(&mut |s| {
         rec.source_sample(s);
         let events = fusion.process(s, s.arrival_us);
         rec.estimator_output(&fusion.est, &events);
         if i % 4096 == 0 {
-            progress(i as f64 / n as f64);
+            progress((i as f64 / n as f64).min(1.0));
         }
-    }
+        i += 1;
+    });
     progress(1.0);
     let input = RunInput {
         name: input_name.to_string(),
         mode,
-        samples: samples.len() as u64,
+        samples: survey.samples as u64,
     };
     // 20 ms: the reference (30 Hz VIO) and the fused poses (50 Hz) are never closer
     // than evo's default 10 ms for every pose.

@@ -694,13 +694,9 @@ mod tests {
         assert!(!all_finite(&long));
     }
 
-    /// The structured prediction equals the dense F P Fᵀ it replaces, on a full (random,
-    /// positive definite) covariance with an odometry block and a GNSS time constant.
-    #[test]
-    fn structured_prediction_equals_the_dense_product() {
-        let n = CORE_STATES + 3;
-        let a = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 13) % 11) as f64 / 11.0 - 0.4);
-        let p0 = &a * a.transpose() + DMatrix::identity(n, n) * 0.5;
+    /// A filter with state `x` and covariance `p` over the core states and one odometry
+    /// block.
+    fn with_odometry_block(x: DVector<f64>, p: &DMatrix<f64>) -> Ekf {
         let mut ekf = Ekf::new(
             Vector3::zeros(),
             Vector3::zeros(),
@@ -708,9 +704,20 @@ mod tests {
             Vector3::repeat(1.0),
             0.0,
         );
-        ekf.x = DVector::from_fn(n, |i, _| i as f64 * 0.1);
-        ekf.p = p0.clone();
-        ekf.blocks.push(("t265".into(), CORE_STATES));
+        ekf.x = x;
+        ekf.p = p.clone();
+        ekf.blocks.push(("vo".into(), CORE_STATES));
+        ekf
+    }
+
+    /// The structured prediction equals the dense F P Fᵀ it replaces, on a full (random,
+    /// positive definite) covariance with an odometry block and a GNSS time constant.
+    #[test]
+    fn structured_prediction_equals_the_dense_product() {
+        let n = CORE_STATES + 3;
+        let a = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 13) % 11) as f64 / 11.0 - 0.4);
+        let p0 = &a * a.transpose() + DMatrix::identity(n, n) * 0.5;
+        let mut ekf = with_odometry_block(DVector::from_fn(n, |i, _| i as f64 * 0.1), &p0);
         ekf.gnss_bias_tau_s = 30.0;
         let rot = *nalgebra::Rotation3::from_euler_angles(0.1, -0.2, 0.7).matrix();
         let dt = 0.005;
@@ -909,16 +916,8 @@ mod tests {
         let p0 = &a * a.transpose() + DMatrix::identity(n, n) * 0.3;
         let rot = *nalgebra::Rotation3::from_euler_angles(0.2, 0.1, -0.9).matrix();
         for rows in 1..=3 {
-            let mut ekf = Ekf::new(
-                Vector3::zeros(),
-                Vector3::zeros(),
-                Vector3::repeat(1.0),
-                Vector3::repeat(1.0),
-                0.0,
-            );
-            ekf.x = DVector::from_fn(n, |i, _| (i as f64 * 0.37).sin());
-            ekf.p = p0.clone();
-            ekf.blocks.push(("vo".into(), CORE_STATES));
+            let x0 = DVector::from_fn(n, |i, _| (i as f64 * 0.37).sin());
+            let mut ekf = with_odometry_block(x0.clone(), &p0);
             let mut m = Measurement::new(rows);
             for i in 0..rows {
                 m.set_innovation(i, 0.3 - 0.2 * i as f64);
@@ -958,20 +957,13 @@ mod tests {
                 "{rows} rows: x off by {dx}, P by {dp}"
             );
             assert!(
-                (&ekf.x - DVector::from_fn(n, |i, _| (i as f64 * 0.37).sin()))
-                    .abs()
-                    .max()
-                    > 1e-3,
+                (&ekf.x - &x0).abs().max() > 1e-3,
                 "the update moved the state"
             );
-            assert!(
-                (ekf.test_ratio(&m, 2.0) - {
-                    let s = dense_h(&m, n) * &ekf.p * dense_h(&m, n).transpose() + &r;
-                    (y.transpose() * s.try_inverse().expect("S") * &y)[(0, 0)] / 2.0
-                })
-                .abs()
-                    < 1e-12
-            );
+            // The gate test alone, on the updated filter: NIS / gate, the state untouched.
+            let s_now = &h * &ekf.p * h.transpose() + &r;
+            let nis_now = (y.transpose() * s_now.try_inverse().expect("S") * &y)[(0, 0)];
+            assert!((ekf.test_ratio(&m, 2.0) - nis_now / 2.0).abs() < 1e-12);
         }
     }
 }

@@ -200,7 +200,7 @@ fn read_topics(
     // A ULog's rows are counted: room for them all at once, not regrown (and copied)
     // as they come.
     let mut samples = Vec::with_capacity(files.iter().map(TopicFile::ulog_rows).sum());
-    let topics = match read_ulog_merged(&files, &mut samples, &mut prog, true)? {
+    let topics = match read_ulog_merged(&files, &mut |s| samples.push(s), &mut prog, true)? {
         Some(topics) => topics,
         None => {
             let mut topics = Vec::with_capacity(files.len());
@@ -216,17 +216,15 @@ fn read_topics(
     let mut stand_ins = Vec::new();
     attach_angular_velocity(&mut samples);
     if attach_ekf2_flow_gyro(&mut samples) > 0 {
-        stand_ins.push(
-            "flow gyro: EKF2's (estimator_optical_flow_vel) for flow samples without their own"
-                .to_string(),
-        );
+        stand_ins.push(FLOW_GYRO_STAND_IN.to_string());
     }
     if !has("sensor_combined") && has("vehicle_imu") {
-        rename(&mut samples, "vehicle_imu", "imu");
-        stand_ins.push(
-            "imu: vehicle_imu (logged at a low rate) stands in for sensor_combined (absent)"
-                .to_string(),
-        );
+        for s in samples.iter_mut() {
+            if let Some(to) = imu_name(&s.source) {
+                s.source = Arc::from(to);
+            }
+        }
+        stand_ins.push(IMU_STAND_IN.to_string());
     }
     if !has("vehicle_attitude") && attitude_from_ekf2_heading(&mut samples) > 0 {
         stand_ins.push(
@@ -234,11 +232,7 @@ fn read_topics(
                 .to_string(),
         );
     }
-    let missing = WANTED
-        .iter()
-        .filter(|(_, names)| !names.iter().any(|n| has(n)))
-        .map(|(what, names)| format!("{what}: none of {}", names.join(", ")))
-        .collect();
+    let missing = missing_topics(&has);
     (prog.cb)(prog.total, prog.total);
     Ok(Px4Log {
         samples,
@@ -248,15 +242,27 @@ fn read_topics(
     })
 }
 
-/// Source `from` (and its instances `from_i`) becomes `to` (`to_i`).
-fn rename(samples: &mut [Sample], from: &str, to: &str) {
-    for s in samples.iter_mut() {
-        if let Some(rest) = s.source.strip_prefix(from) {
-            if rest.is_empty() || rest.starts_with('_') {
-                s.source = Arc::from(format!("{to}{rest}"));
-            }
-        }
-    }
+/// The replay's sentence for EKF2's flow gyro standing in.
+const FLOW_GYRO_STAND_IN: &str =
+    "flow gyro: EKF2's (estimator_optical_flow_vel) for flow samples without their own";
+/// The replay's sentence for `vehicle_imu` standing in.
+const IMU_STAND_IN: &str =
+    "imu: vehicle_imu (logged at a low rate) stands in for sensor_combined (absent)";
+
+/// Wanted topics the log does not have (`has` says which it has), as sentences.
+fn missing_topics(has: &dyn Fn(&str) -> bool) -> Vec<String> {
+    WANTED
+        .iter()
+        .filter(|(_, names)| !names.iter().any(|n| has(n)))
+        .map(|(what, names)| format!("{what}: none of {}", names.join(", ")))
+        .collect()
+}
+
+/// The name `vehicle_imu`'s source (and its instances `vehicle_imu_i`) takes when it
+/// stands in for `sensor_combined`: `imu` (`imu_i`).
+fn imu_name(source: &str) -> Option<String> {
+    let rest = source.strip_prefix("vehicle_imu")?;
+    (rest.is_empty() || rest.starts_with('_')).then(|| format!("imu{rest}"))
 }
 
 /// Takes the rows of an internal rate source out of `samples`: (time, gyro), by time.
@@ -285,13 +291,18 @@ fn attach_angular_velocity(samples: &mut Vec<Sample>) {
         .iter_mut()
         .filter(|s| s.source.as_ref() == "attitude")
     {
-        let (Some(t), SensorData::Attitude(a)) = (s.stamp_us, &mut s.data) else {
-            continue;
-        };
-        if let Some((rt, g)) = nearest(&rates, t) {
-            if (rt - t).abs() <= 10_000 {
-                a.rates = Some(g);
-            }
+        if let (Some(t), SensorData::Attitude(a)) = (s.stamp_us, &mut s.data) {
+            attach_rate(a, &rates, t);
+        }
+    }
+}
+
+/// The rate of `rates` (time, rate; by time) nearest to the attitude's time `t`, within
+/// 10 ms, as the attitude's rates.
+fn attach_rate(a: &mut Attitude, rates: &[(i64, Vector3<f64>)], t: i64) {
+    if let Some((rt, g)) = nearest(rates, t) {
+        if (rt - t).abs() <= 10_000 {
+            a.rates = Some(g);
         }
     }
 }
@@ -370,20 +381,26 @@ fn attach_ekf2_flow_gyro(samples: &mut Vec<Sample>) -> usize {
     let rows = take_rates(samples, EKF2_FLOW_GYRO);
     let mut n = 0;
     for s in samples.iter_mut().filter(|s| s.source.as_ref() == "flow") {
-        let (Some(t), SensorData::Flow(f)) = (s.stamp_us, &mut s.data) else {
-            continue;
-        };
-        let (Some(dt), None) = (f.integration_s, f.gyro) else {
-            continue;
-        };
-        if let Some((rt, g)) = nearest(&rows, t) {
-            if (rt - t).abs() <= 5_000 {
-                f.gyro = Some(frames::frd_to_flu(-g / dt));
-                n += 1;
-            }
+        if let (Some(t), SensorData::Flow(f)) = (s.stamp_us, &mut s.data) {
+            n += usize::from(attach_flow_gyro(f, &rows, t));
         }
     }
     n
+}
+
+/// EKF2's gyro integral of `rows` (time, FRD integral; by time) for the flow sample at
+/// `t` without a gyro of its own: the nearest within 5 ms, as a rate. Whether it got one.
+fn attach_flow_gyro(f: &mut OpticalFlow, rows: &[(i64, Vector3<f64>)], t: i64) -> bool {
+    let (Some(dt), None) = (f.integration_s, f.gyro) else {
+        return false;
+    };
+    match nearest(rows, t) {
+        Some((rt, g)) if (rt - t).abs() <= 5_000 => {
+            f.gyro = Some(frames::frd_to_flu(-g / dt));
+            true
+        }
+        _ => false,
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -758,7 +775,7 @@ impl Progress<'_> {
 /// instead. Without `in_order`, a single topic is read in its rows' order.
 fn read_ulog_merged(
     files: &[TopicFile],
-    samples: &mut Vec<Sample>,
+    sink: &mut dyn FnMut(Sample),
     prog: &mut Progress<'_>,
     in_order: bool,
 ) -> Result<Option<Vec<TopicSummary>>, Px4LogError> {
@@ -780,19 +797,7 @@ fn read_ulog_merged(
             return Ok(None);
         };
         let mapper = Mapper::new(tf.kind, &tf.path, header)?;
-        let time = columns
-            .get(mapper.time_column())
-            .map_or(&[][..], Vec::as_slice);
-        let mut last = i64::MIN;
-        let keys: Vec<i64> = time
-            .iter()
-            .map(|v| {
-                if v.fract() == 0.0 && (0.0..9.0e18).contains(v) {
-                    last = *v as i64;
-                }
-                last
-            })
-            .collect();
+        let keys = time_keys_of(columns, &mapper);
         if in_order && keys.windows(2).any(|w| w[1] < w[0]) {
             return Ok(None);
         }
@@ -844,7 +849,7 @@ fn read_ulog_merged(
                 header: c.header,
                 fields: Fields::Num(&values),
             };
-            take_row(&mut c.summary, &c.source, c.mapper.map(&row), samples);
+            take_row(&mut c.summary, &c.source, c.mapper.map(&row), sink);
             prog.advance(1);
             c.row += 1;
         }
@@ -852,12 +857,41 @@ fn read_ulog_merged(
     Ok(Some(cursors.into_iter().map(|c| c.summary).collect()))
 }
 
+/// Each row's time as `mapper` reads it from a ULog topic's `columns`; a row without
+/// one takes the previous row's (it is skipped when mapped, so its place does not
+/// matter).
+fn time_keys_of(columns: &[Vec<f64>], mapper: &Mapper) -> Vec<i64> {
+    let time = columns
+        .get(mapper.time_column())
+        .map_or(&[][..], Vec::as_slice);
+    let mut last = i64::MIN;
+    time.iter()
+        .map(|v| {
+            if v.fract() == 0.0 && (0.0..9.0e18).contains(v) {
+                last = *v as i64;
+            }
+            last
+        })
+        .collect()
+}
+
+/// A ULog topic's row times (see [`time_keys_of`]); empty for a CSV file.
+fn time_keys(tf: &TopicFile) -> Result<Vec<i64>, Px4LogError> {
+    match &tf.data {
+        TopicData::Ulog { header, columns } => Ok(time_keys_of(
+            columns,
+            &Mapper::new(tf.kind, &tf.path, header)?,
+        )),
+        TopicData::Csv { .. } => Ok(Vec::new()),
+    }
+}
+
 /// Counts one row's outcome and keeps its sample.
 fn take_row(
     summary: &mut TopicSummary,
     source: &Arc<str>,
     result: Result<(Micros, SensorData), Px4LogError>,
-    samples: &mut Vec<Sample>,
+    sink: &mut dyn FnMut(Sample),
 ) {
     summary.rows += 1;
     match result {
@@ -866,7 +900,7 @@ fn take_row(
                 None => (stamp, stamp),
                 Some((a, b)) => (a.min(stamp), b.max(stamp)),
             });
-            samples.push(Sample {
+            sink(Sample {
                 source: source.clone(),
                 stamp_us: Some(stamp),
                 arrival_us: stamp,
@@ -891,7 +925,12 @@ fn read_topic(
     match &tf.data {
         TopicData::Ulog { .. } => {
             // One topic: its rows in their order, whatever their times.
-            let read = read_ulog_merged(std::slice::from_ref(tf), samples, prog, false)?;
+            let read = read_ulog_merged(
+                std::slice::from_ref(tf),
+                &mut |s| samples.push(s),
+                prog,
+                false,
+            )?;
             summary = read.into_iter().flatten().next().unwrap_or(summary);
         }
         TopicData::Csv { gzip, .. } => {
@@ -988,7 +1027,7 @@ fn read_csv(
                 line,
             }),
         };
-        take_row(summary, source, result, samples);
+        take_row(summary, source, result, &mut |s| samples.push(s));
     }
     Ok(())
 }
@@ -1230,7 +1269,9 @@ impl<'a> Cols<'a> {
     }
 }
 
+mod stream;
 mod topics;
+pub use stream::{read_ulog_for_replay, UlogRead, UlogSamples};
 use topics::Mapper;
 
 #[cfg(test)]

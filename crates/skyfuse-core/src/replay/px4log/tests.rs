@@ -806,6 +806,79 @@ fn vio_covariances_and_world_frame_velocity_convert() {
     assert_eq!((o.reset_counter, o.quality), (Some(7), Some(-1)));
 }
 
+/// A streamed ULog's samples, as a replay gets them.
+fn streamed_samples(path: &Path) -> (Vec<Sample>, UlogSamples) {
+    let UlogRead::Streamed(log) =
+        read_ulog_for_replay(path, &mut |_, _| {}).unwrap_or_else(|e| panic!("{e}"))
+    else {
+        panic!("{} was read whole, not streamed", path.display());
+    };
+    let mut samples = Vec::new();
+    crate::offline::SampleSource::for_each(&log, &mut |s| samples.push(s.clone()));
+    (samples, log)
+}
+
+/// A ULog streamed gives the samples it gives read whole, one for one in the same
+/// order, with its joins made as they pass (the real log: the attitude's rates from
+/// vehicle_angular_velocity); the same topic summaries and sentences; and the same
+/// samples on a second pass (a replay surveys, then fuses).
+#[test]
+fn a_streamed_ulog_gives_the_samples_it_gives_read_whole() {
+    let real = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data/px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg");
+    let dir = TempDir::new("streamed");
+    let simulated = dir.0.join("sim.ulg");
+    let streams = crate::sim::sensors::with_imu_rate(crate::sim::sensors::DEMO_STREAMS, 1000.0);
+    let events = crate::sim::Simulator::new(&streams, 3, 20.0);
+    let file = File::create(&simulated).unwrap_or_else(|e| panic!("{e}"));
+    crate::sim::ulog::write_flight(events, file).unwrap_or_else(|e| panic!("{e}"));
+    for path in [real, simulated] {
+        let whole =
+            read_ulog_with_progress(&path, &mut |_, _| {}).unwrap_or_else(|e| panic!("{e}"));
+        let (samples, log) = streamed_samples(&path);
+        assert_eq!(samples.len(), whole.samples.len(), "{}", path.display());
+        assert!(
+            samples == whole.samples,
+            "{}: the samples differ",
+            path.display()
+        );
+        let mut again = Vec::new();
+        crate::offline::SampleSource::for_each(&log, &mut |s| again.push(s.clone()));
+        assert!(
+            again == samples,
+            "{}: a second pass differs",
+            path.display()
+        );
+        let brief = |t: &[TopicSummary]| {
+            t.iter()
+                .map(|t| {
+                    format!(
+                        "{} {} {} {} {:?}",
+                        t.name, t.source, t.rows, t.skipped, t.span_us
+                    )
+                })
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(
+            brief(&log.take_topics()),
+            brief(&whole.topics),
+            "{}",
+            path.display()
+        );
+        assert_eq!(log.stand_ins(), whole.stand_ins);
+        assert_eq!(log.missing, whole.missing);
+    }
+    // The real log's attitude got its rates from vehicle_angular_velocity.
+    let (samples, _) = streamed_samples(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../tests/data/px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg")
+            .as_path(),
+    );
+    assert!(samples
+        .iter()
+        .any(|s| matches!(&s.data, SensorData::Attitude(a) if a.rates.is_some())));
+}
+
 /// A ULog topic keeps only the fields its mapper reads (PX4 1.14's sensor_combined, in
 /// message order); a topic the mapper cannot read keeps them all, for its error.
 #[test]
