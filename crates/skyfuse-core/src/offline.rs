@@ -584,18 +584,25 @@ fn event_time(line: &str) -> f64 {
         .unwrap_or(0.0)
 }
 
-/// What a replay needs to know of its samples before fusing them: each source's kind,
-/// count and first and last time (its mean rate), the autopilot-state sources, and the
-/// first sample's stamp.
+/// What a replay needs to know of its samples before fusing them: each source's
+/// kinds, count and first and last time (its mean rate), and the first sample's stamp.
 #[derive(Default)]
 struct SampleSurvey {
-    /// Per source: its first sample's kind, count, first and last time.
-    sources: BTreeMap<String, (SensorKind, usize, i64, i64)>,
-    /// Per source: its last sample's kind (what `--sources` matches a kind against).
-    last_kind: BTreeMap<String, SensorKind>,
-    vehicle_state: std::collections::BTreeSet<String>,
+    sources: BTreeMap<String, SourceSurvey>,
     first_stamp: Option<Option<i64>>,
     samples: usize,
+}
+
+/// One source's samples, as [`SampleSurvey`] saw them.
+struct SourceSurvey {
+    first_kind: SensorKind,
+    /// What `--sources` matches a kind against.
+    last_kind: SensorKind,
+    /// Any of its samples is the autopilot's armed/landed state.
+    vehicle_state: bool,
+    count: usize,
+    first_t: i64,
+    last_t: i64,
 }
 
 impl SampleSurvey {
@@ -609,28 +616,31 @@ impl SampleSurvey {
         self.samples += 1;
         self.first_stamp.get_or_insert(s.stamp_us);
         let t = s.stamp_us.unwrap_or(s.arrival_us);
+        let kind = s.data.kind();
         let e = crate::estimator::get_or_insert_with(&mut self.sources, s.source.as_ref(), || {
-            (s.source.to_string(), (s.data.kind(), 0, t, t))
+            let first = SourceSurvey {
+                first_kind: kind,
+                last_kind: kind,
+                vehicle_state: false,
+                count: 0,
+                first_t: t,
+                last_t: t,
+            };
+            (s.source.to_string(), first)
         });
-        e.1 += 1;
-        e.3 = t;
-        *crate::estimator::get_or_insert_with(&mut self.last_kind, s.source.as_ref(), || {
-            (s.source.to_string(), s.data.kind())
-        }) = s.data.kind();
-        if s.data.kind() == SensorKind::VehicleState
-            && !self.vehicle_state.contains(s.source.as_ref())
-        {
-            self.vehicle_state.insert(s.source.to_string());
-        }
+        e.count += 1;
+        e.last_t = t;
+        e.last_kind = kind;
+        e.vehicle_state |= kind == SensorKind::VehicleState;
     }
 
     /// The inputs of a recording: each source with its kind and mean rate.
     fn inputs(&self) -> InputList {
         self.sources
             .iter()
-            .map(|(id, &(kind, n, first, last))| {
-                let span = ((last - first) as f64 * 1e-6).max(1e-3);
-                InputSpec::new(id, kind, (n as f64 / span).max(0.1))
+            .map(|(id, e)| {
+                let span = ((e.last_t - e.first_t) as f64 * 1e-6).max(1e-3);
+                InputSpec::new(id, e.first_kind, (e.count as f64 / span).max(0.1))
             })
             .collect()
     }
@@ -658,7 +668,7 @@ impl SampleSource for &[Sample] {
 
 impl SampleSource for Vec<Sample> {
     fn for_each(&self, f: &mut dyn FnMut(&Sample)) {
-        self.iter().for_each(f);
+        SampleSource::for_each(&self.as_slice(), f);
     }
 
     fn len_hint(&self) -> usize {
@@ -699,10 +709,9 @@ pub fn run_replay(
         // A source id (`flow_1`), or a sensor kind (`flow`: every flow sensor). The
         // autopilot's armed/landed state is not a sensor under comparison: it is used
         // whenever the log has it, as the service uses EXTENDED_SYS_STATE.
-        for (id, kind) in &survey.last_kind {
+        for (id, e) in &survey.sources {
             cfg.sources.entry(id.clone()).or_default().fuse =
-                list.iter().any(|l| l == id || l == kind.as_str())
-                    || survey.vehicle_state.contains(id);
+                list.iter().any(|l| l == id || l == e.last_kind.as_str()) || e.vehicle_state;
         }
     }
     let mode = cfg.mode;

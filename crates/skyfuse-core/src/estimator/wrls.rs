@@ -58,14 +58,8 @@ pub struct Wrls {
     heights: BTreeMap<String, Option<(f64, f64)>>,
 }
 
-/// Inverse-variance weights a_i = σ_i⁻² / Σσ⁻² and the fused variance 1 / Σσ⁻² (a
-/// non-positive or non-finite variance gets weight 0).
-pub fn weights(vars: &[f64]) -> (Vec<f64>, f64) {
-    let f = Fused::of(vars.iter().copied());
-    (vars.iter().map(|&v| f.weight(v)).collect(), f.variance())
-}
-
-/// Σσ⁻² of some estimates: their fused variance and each one's weight.
+/// Σσ⁻² of some estimates: the inverse-variance weights a_i = σ_i⁻² / Σσ⁻² and the
+/// fused variance 1 / Σσ⁻² (a non-positive or non-finite variance gets weight 0).
 #[derive(Clone, Copy)]
 struct Fused {
     inverse_sum: f64,
@@ -225,6 +219,11 @@ impl Wrls {
                         (s, a.delta[axis] * k, a.var[axis] * k * k)
                     })
             };
+            // Every relative source of this tick gets a weight on each axis; the others
+            // are dropped.
+            let rel = &self.rel;
+            self.weights
+                .retain(|s, _| rel.get(s).is_some_and(|a| a.covered > 0.0));
             let mut delta = Vector3::zeros();
             let mut dvar = Vector3::zeros();
             for axis in 0..3 {
@@ -235,14 +234,6 @@ impl Wrls {
                 } else {
                     dvar[axis] = no_delta_var * period;
                 }
-            }
-            // Every relative source of this tick has a weight on each axis; the others
-            // are dropped.
-            let rel = &self.rel;
-            self.weights
-                .retain(|s, _| rel.get(s).is_some_and(|a| a.covered > 0.0));
-            for axis in 0..3 {
-                let f = Fused::of(scaled(axis).map(|i| i.2));
                 for (s, _, var) in scaled(axis) {
                     let w = f.weight(var);
                     match self.weights.get_mut(s) {
@@ -331,11 +322,12 @@ mod tests {
 
     #[test]
     fn inverse_variance_weights() {
-        let (w, v) = weights(&[1.0, 4.0]);
-        assert!((w[0] - 0.8).abs() < 1e-12 && (w[1] - 0.2).abs() < 1e-12);
-        assert!((v - 0.8).abs() < 1e-12);
-        let (w, _) = weights(&[2.0, f64::INFINITY, 2.0]);
-        assert_eq!(w, vec![0.5, 0.0, 0.5]);
+        let f = Fused::of([1.0, 4.0].into_iter());
+        assert!((f.weight(1.0) - 0.8).abs() < 1e-12 && (f.weight(4.0) - 0.2).abs() < 1e-12);
+        assert!((f.variance() - 0.8).abs() < 1e-12);
+        let vars = [2.0, f64::INFINITY, 2.0];
+        let f = Fused::of(vars.into_iter());
+        assert_eq!(vars.map(|v| f.weight(v)), [0.5, 0.0, 0.5]);
     }
 
     #[test]

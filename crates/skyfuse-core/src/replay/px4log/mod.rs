@@ -174,18 +174,6 @@ pub fn read_ulog_with_progress(
     read_topics(ulog_topic_files(file)?, progress)
 }
 
-/// A ULog file or a CSV export directory, whichever `path` is.
-pub fn read_path_with_progress(
-    path: &Path,
-    progress: &mut dyn FnMut(u64, u64),
-) -> Result<Px4Log, Px4LogError> {
-    if path.is_dir() {
-        read_dir_with_progress(path, progress)
-    } else {
-        read_ulog_with_progress(path, progress)
-    }
-}
-
 fn read_topics(
     files: Vec<TopicFile>,
     progress: &mut dyn FnMut(u64, u64),
