@@ -93,7 +93,16 @@ impl Recorder {
     pub fn source_sample(&mut self, s: &Sample) {
         let Some(stamp) = s.stamp_us else { return };
         let t = self.secs(stamp);
-        let id = s.source.to_string();
+        let id: &str = &s.source;
+        // Most samples (the IMU's) are not positions: a source's key is made once.
+        fn track<'a>(
+            sources: &'a mut BTreeMap<String, Trajectory>,
+            id: &str,
+        ) -> &'a mut Trajectory {
+            crate::estimator::get_or_insert_with(sources, id, || {
+                (id.to_string(), Trajectory::default())
+            })
+        }
         match &s.data {
             SensorData::Gnss(g) if g.fix != GnssFixType::NoFix && g.lat_deg.is_finite() => {
                 let origin = *self
@@ -101,19 +110,14 @@ impl Recorder {
                     .get_or_insert_with(|| LocalEnu::new(g.lat_deg, g.lon_deg, g.alt_m));
                 let p = origin.to_enu(g.lat_deg, g.lon_deg, g.alt_m);
                 push(
-                    self.sources.entry(id).or_default(),
+                    track(&mut self.sources, id),
                     t,
                     p,
                     UnitQuaternion::identity(),
                 );
             }
             SensorData::Odometry(o) => {
-                push(
-                    self.sources.entry(id).or_default(),
-                    t,
-                    o.position,
-                    o.orientation,
-                );
+                push(track(&mut self.sources, id), t, o.position, o.orientation);
             }
             SensorData::VehicleState(v) => {
                 if let Some(l) = v.landed {
@@ -131,12 +135,12 @@ impl Recorder {
                     let (lat, lon, alt) = a.geodetic?;
                     let o = *self
                         .geodetic_origins
-                        .entry(id.clone())
+                        .entry(id.to_string())
                         .or_insert_with(|| LocalEnu::new(lat, lon, alt));
                     Some(o.to_enu(lat, lon, alt))
                 });
                 if let Some(p) = p {
-                    push(self.sources.entry(id).or_default(), t, p, q);
+                    push(track(&mut self.sources, id), t, p, q);
                 }
             }
             _ => {}
@@ -586,14 +590,16 @@ fn event_time(line: &str) -> f64 {
 
 /// What a replay needs to know of its samples before fusing them: each source's
 /// kinds, count and first and last time (its mean rate), and the first sample's stamp.
-#[derive(Default)]
-struct SampleSurvey {
+#[derive(Debug, Default, PartialEq)]
+pub(crate) struct SampleSurvey {
     sources: BTreeMap<String, SourceSurvey>,
-    first_stamp: Option<Option<i64>>,
+    /// The first sample's time and stamp.
+    first: Option<(i64, Option<i64>)>,
     samples: usize,
 }
 
 /// One source's samples, as [`SampleSurvey`] saw them.
+#[derive(Debug, PartialEq)]
 struct SourceSurvey {
     first_kind: SensorKind,
     /// What `--sources` matches a kind against.
@@ -605,17 +611,40 @@ struct SourceSurvey {
     last_t: i64,
 }
 
+/// How a survey gets its samples: one sequence (first seen is first, last seen is
+/// last), or runs each in time order whose order breaks ties of time (the earliest
+/// is first, the latest last).
+#[derive(Clone, Copy)]
+enum Seen {
+    InSequence,
+    InRuns,
+}
+
 impl SampleSurvey {
-    fn of(samples: &dyn SampleSource) -> Self {
+    pub(crate) fn of(samples: &dyn SampleSource) -> Self {
         let mut survey = Self::default();
-        samples.for_each(&mut |s| survey.add(s));
+        if !samples.for_each_in_runs(&mut |s| survey.add(s, Seen::InRuns)) {
+            samples.for_each(&mut |s| survey.add(s, Seen::InSequence));
+        }
         survey
     }
 
-    fn add(&mut self, s: &Sample) {
+    /// Of the samples in one sequence, as `for_each` gives them.
+    #[cfg(test)]
+    pub(crate) fn in_sequence(samples: &dyn SampleSource) -> Self {
+        let mut survey = Self::default();
+        samples.for_each(&mut |s| survey.add(s, Seen::InSequence));
+        survey
+    }
+
+    fn add(&mut self, s: &Sample, seen: Seen) {
         self.samples += 1;
-        self.first_stamp.get_or_insert(s.stamp_us);
         let t = s.stamp_us.unwrap_or(s.arrival_us);
+        let earlier = |t: i64, than: i64| matches!(seen, Seen::InRuns) && t < than;
+        let later = |t: i64, than: i64| matches!(seen, Seen::InSequence) || t >= than;
+        if self.first.is_none_or(|(f, _)| earlier(t, f)) {
+            self.first = Some((t, s.stamp_us));
+        }
         let kind = s.data.kind();
         let e = crate::estimator::get_or_insert_with(&mut self.sources, s.source.as_ref(), || {
             let first = SourceSurvey {
@@ -629,8 +658,14 @@ impl SampleSurvey {
             (s.source.to_string(), first)
         });
         e.count += 1;
-        e.last_t = t;
-        e.last_kind = kind;
+        if earlier(t, e.first_t) {
+            e.first_t = t;
+            e.first_kind = kind;
+        }
+        if later(t, e.last_t) {
+            e.last_t = t;
+            e.last_kind = kind;
+        }
         e.vehicle_state |= kind == SensorKind::VehicleState;
     }
 
@@ -654,6 +689,13 @@ pub trait SampleSource {
     fn for_each(&self, f: &mut dyn FnMut(&Sample));
     /// How many samples there are, or about (for progress).
     fn len_hint(&self) -> usize;
+    /// Calls `f` with every sample in runs, each in time order, the runs in the order
+    /// that breaks ties of time (a log's topics one after another), where that is
+    /// cheaper than [`Self::for_each`] and enough (a survey); false, calling nothing,
+    /// when there are no such runs.
+    fn for_each_in_runs(&self, _f: &mut dyn FnMut(&Sample)) -> bool {
+        false
+    }
 }
 
 impl SampleSource for &[Sample] {
@@ -716,7 +758,7 @@ pub fn run_replay(
     }
     let mode = cfg.mode;
     let mut fusion = Fusion::new(cfg, health, &survey.inputs());
-    let t0 = opts.t0_us.or(survey.first_stamp.flatten()).unwrap_or(0);
+    let t0 = opts.t0_us.or(survey.first.and_then(|f| f.1)).unwrap_or(0);
     let mut rec = Recorder::new(t0);
     let n = samples.len_hint().max(1);
     let mut i = 0;

@@ -800,7 +800,6 @@ fn read_ulog_merged(
             summary: TopicSummary::of(tf),
         });
     }
-    let mut values = Vec::new();
     loop {
         // Few topics: a scan of their next rows beats a heap. Ties go to the first.
         let mut next: Option<(i64, usize)> = None;
@@ -825,17 +824,14 @@ fn read_ulog_merged(
             if until.is_some_and(|(u, j)| k > u || (k == u && j < i)) {
                 break;
             }
-            values.clear();
-            values.extend(
-                c.columns
-                    .iter()
-                    .map(|col| col.get(c.row).copied().unwrap_or(f64::NAN)),
-            );
             let row = Row {
                 file: &c.tf.path,
                 line: c.row + 1,
                 header: c.header,
-                fields: Fields::Num(&values),
+                fields: Fields::Num {
+                    columns: c.columns,
+                    row: c.row,
+                },
             };
             take_row(&mut c.summary, &c.source, c.mapper.map(&row), sink);
             prog.advance(1);
@@ -1031,19 +1027,26 @@ struct Row<'a> {
 #[derive(Clone, Copy)]
 enum Fields<'a> {
     /// A CSV line and where each of its fields ends (the comma after it, or the end).
-    Text {
-        line: &'a str,
-        ends: &'a [usize],
-    },
-    Num(&'a [f64]),
+    Text { line: &'a str, ends: &'a [usize] },
+    /// Row `row` of a ULog topic's columns, read in place: a column not kept (empty)
+    /// reads as NaN.
+    Num { columns: &'a [Vec<f64>], row: usize },
 }
 
 impl<'a> Fields<'a> {
     fn len(&self) -> usize {
         match self {
             Fields::Text { ends, .. } => ends.len(),
-            Fields::Num(n) => n.len(),
+            Fields::Num { columns, .. } => columns.len(),
         }
+    }
+
+    /// Field `c` of a ULog row (None past its last column).
+    fn num(&self, c: usize) -> Option<f64> {
+        let Fields::Num { columns, row } = *self else {
+            return None;
+        };
+        Some(columns.get(c)?.get(row).copied().unwrap_or(f64::NAN))
     }
 
     /// Field `c` of a CSV line, trimmed.
@@ -1091,7 +1094,7 @@ impl Row<'_> {
     fn text(&self, c: usize) -> String {
         match self.fields {
             Fields::Text { .. } => self.fields.text(c).unwrap_or("").to_string(),
-            Fields::Num(n) => n.get(c).map_or(String::new(), |v| v.to_string()),
+            Fields::Num { .. } => self.fields.num(c).map_or(String::new(), |v| v.to_string()),
         }
     }
 
@@ -1129,7 +1132,7 @@ impl Row<'_> {
                 .unwrap_or("")
                 .parse()
                 .map_err(|_| self.bad(c, "a number")),
-            Fields::Num(n) => n.get(c).copied().ok_or_else(|| self.bad(c, "a number")),
+            Fields::Num { .. } => self.fields.num(c).ok_or_else(|| self.bad(c, "a number")),
         }
     }
 
@@ -1151,10 +1154,11 @@ impl Row<'_> {
     ) -> Result<i64, Px4LogError> {
         let v = match self.fields {
             Fields::Text { .. } => self.fields.text(c).and_then(|s| s.parse::<i64>().ok()),
-            Fields::Num(n) => n
-                .get(c)
+            Fields::Num { .. } => self
+                .fields
+                .num(c)
                 .filter(|v| v.fract() == 0.0 && v.abs() < 9.0e18)
-                .map(|v| *v as i64),
+                .map(|v| v as i64),
         };
         match v {
             Some(v) if (min..=max).contains(&v) => Ok(v),

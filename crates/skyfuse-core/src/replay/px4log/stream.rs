@@ -122,9 +122,29 @@ impl UlogSamples {
     }
 }
 
+impl UlogSamples {
+    /// `vehicle_imu`'s sources become `imu`'s when it stands in for `sensor_combined`:
+    /// each new name made once (`renamed`: from, to).
+    fn rename_imu(&self, s: &mut Sample, renamed: &mut Vec<(Arc<str>, Arc<str>)>) {
+        if !self.imu_from_vehicle_imu {
+            return;
+        }
+        if let Some(to) = imu_name(&s.source) {
+            let at = renamed
+                .iter()
+                .position(|(from, _)| Arc::ptr_eq(from, &s.source));
+            let at = at.unwrap_or_else(|| {
+                renamed.push((s.source.clone(), Arc::from(to)));
+                renamed.len() - 1
+            });
+            s.source = renamed[at].1.clone();
+        }
+    }
+}
+
 impl crate::offline::SampleSource for UlogSamples {
     fn for_each(&self, f: &mut dyn FnMut(&Sample)) {
-        let mut renamed: Vec<(Arc<str>, Arc<str>)> = Vec::new();
+        let mut renamed = Vec::new();
         let given_gyro = std::cell::Cell::new(0);
         let mut pass = |mut s: Sample| {
             match &mut s.data {
@@ -142,18 +162,7 @@ impl crate::offline::SampleSource for UlogSamples {
                 }
                 _ => {}
             }
-            if self.imu_from_vehicle_imu {
-                if let Some(to) = imu_name(&s.source) {
-                    let at = renamed
-                        .iter()
-                        .position(|(from, _)| Arc::ptr_eq(from, &s.source));
-                    let at = at.unwrap_or_else(|| {
-                        renamed.push((s.source.clone(), Arc::from(to)));
-                        renamed.len() - 1
-                    });
-                    s.source = renamed[at].1.clone();
-                }
-            }
+            self.rename_imu(&mut s, &mut renamed);
             f(&s);
         };
         // The files' mappers were made when it was opened: reading cannot fail now.
@@ -168,5 +177,19 @@ impl crate::offline::SampleSource for UlogSamples {
 
     fn len_hint(&self) -> usize {
         self.rows
+    }
+
+    /// Topic after topic, in the merge's order of files: a merge's tie goes to the
+    /// earlier file. Without the joins (a survey does not read what they add).
+    fn for_each_in_runs(&self, f: &mut dyn FnMut(&Sample)) -> bool {
+        let mut renamed = Vec::new();
+        for tf in &self.files {
+            let mut pass = |mut s: Sample| {
+                self.rename_imu(&mut s, &mut renamed);
+                f(&s);
+            };
+            let _ = merged(std::slice::from_ref(tf), &mut pass);
+        }
+        true
     }
 }

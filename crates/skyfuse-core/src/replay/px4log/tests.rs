@@ -867,6 +867,13 @@ fn a_streamed_ulog_gives_the_samples_it_gives_read_whole() {
         );
         assert_eq!(log.stand_ins(), whole.stand_ins);
         assert_eq!(log.missing, whole.missing);
+        // A survey reads it topic by topic, unmerged, and sees what the merged pass does.
+        assert_eq!(
+            crate::offline::SampleSurvey::of(&log),
+            crate::offline::SampleSurvey::in_sequence(&log),
+            "{}",
+            path.display()
+        );
     }
     // The real log's attitude got its rates from vehicle_angular_velocity.
     let (samples, _) = streamed_samples(
