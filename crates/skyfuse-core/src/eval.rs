@@ -102,11 +102,17 @@ pub fn push_fixed(out: &mut String, v: f64, digits: u32) {
     if v.is_sign_negative() {
         out.push('-');
     }
-    // Both parts fit 64 bits (below 1e15, and below 10^9).
-    push_decimal(out, (scaled / scale) as u64, 1);
+    // Both parts fit 64 bits (below 1e15, and below 10^9); the division in 64 bits
+    // where the scaled value fits (a pose's numbers: below 1.8e10 at 9 digits), as a
+    // 128-bit one is a call.
+    let (int, frac) = match u64::try_from(scaled) {
+        Ok(n) => (n / scale as u64, n % scale as u64),
+        Err(_) => ((scaled / scale) as u64, (scaled % scale) as u64),
+    };
+    push_decimal(out, int, 1);
     if digits > 0 {
         out.push('.');
-        push_decimal(out, (scaled % scale) as u64, digits as usize);
+        push_decimal(out, frac, digits as usize);
     }
 }
 
@@ -124,7 +130,8 @@ fn push_decimal(out: &mut String, mut n: u64, width: usize) {
         }
     }
     let start = start.min(buf.len() - width.min(buf.len()));
-    out.push_str(std::str::from_utf8(&buf[start..]).unwrap_or_default());
+    // ASCII digits: pushed as chars, with no UTF-8 check of the buffer.
+    out.extend(buf[start..].iter().map(|&b| char::from(b)));
 }
 
 impl Trajectory {
