@@ -63,7 +63,8 @@ pub(crate) struct Core {
     pub stats: BTreeMap<String, SourceStatus>,
     pub debug: DebugSeries,
     pub events: Vec<EstimatorEvent>,
-    pub throttle: BTreeMap<String, i64>,
+    /// When an event of each kind (outer key) was last emitted for each source.
+    pub throttle: BTreeMap<&'static str, BTreeMap<String, i64>>,
     pub last_aiding: Option<i64>,
     /// Last horizontal aiding, real or the ground constraint (validity).
     pub last_h_valid: Option<i64>,
@@ -129,24 +130,27 @@ impl Core {
             .push(EstimatorEvent::new(t, source, message, what));
     }
 
+    /// An event of `kind` for `source`, unless one was emitted less than the throttle
+    /// interval ago: `make` (its message and payload) runs only when it is.
     pub(super) fn throttled_event(
         &mut self,
         t: i64,
         source: &str,
-        message: String,
-        what: Event,
+        kind: &'static str,
+        make: impl FnOnce() -> (String, Event),
         ctx: &Ctx,
     ) {
-        let key = format!("{}/{source}", what.kind());
         let every = (ctx.cfg.event_throttle_ms * 1000.0) as i64;
-        if self
-            .throttle
-            .get(&key)
-            .is_some_and(|&l| t - l < every && t >= l)
-        {
+        let last =
+            super::get_or_insert_with(self.throttle.entry(kind).or_default(), source, || {
+                (source.to_string(), i64::MIN)
+            });
+        if *last != i64::MIN && t - *last < every && t >= *last {
             return;
         }
-        self.throttle.insert(key, t);
+        *last = t;
+        let (message, what) = make();
+        debug_assert_eq!(what.kind(), kind, "the throttle's kind is the event's");
         self.event(t, Some(source), message, what);
     }
 
@@ -161,16 +165,14 @@ impl Core {
     pub fn reject(&mut self, t: i64, source: &str, why: &str, ctx: &Ctx) {
         let st = self.stat(source);
         st.last_time_us = Some(t);
-        st.last_reject_reason = Some(why.to_string());
-        self.throttled_event(
-            t,
-            source,
-            format!("{source}: {why}"),
-            Event::SampleRejected {
-                reason: why.to_string(),
-            },
-            ctx,
-        );
+        if st.last_reject_reason.as_deref() != Some(why) {
+            st.last_reject_reason = Some(why.to_string());
+        }
+        let make = || {
+            let reason = why.to_string();
+            (format!("{source}: {why}"), Event::SampleRejected { reason })
+        };
+        self.throttled_event(t, source, "sample_rejected", make, ctx);
     }
 
     pub fn debug_point(&mut self, t: i64, topic: DebugTopic, source: &str, v: Vector3<f64>) {
@@ -246,16 +248,16 @@ impl Core {
             st.rejected += 1;
             st.last_reject_reason = Some(format!("innovation gate, ratio {:.2}", out.test_ratio));
             let ratio = out.test_ratio;
-            self.throttled_event(
-                t,
-                source,
-                format!("{source}: innovation test ratio {ratio:.2} > 1, measurement rejected"),
-                Event::GateReject {
-                    test_ratio: ratio,
-                    innovation: out.innovation().to_vec(),
-                },
-                ctx,
-            );
+            let make = || {
+                (
+                    format!("{source}: innovation test ratio {ratio:.2} > 1, measurement rejected"),
+                    Event::GateReject {
+                        test_ratio: ratio,
+                        innovation: out.innovation().to_vec(),
+                    },
+                )
+            };
+            self.throttled_event(t, source, "gate_reject", make, ctx);
         }
     }
 
