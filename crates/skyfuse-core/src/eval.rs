@@ -14,7 +14,6 @@ use nalgebra::{
     Isometry3, Matrix3, Point3, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3,
 };
 use serde::Serialize;
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// Poses at times: `t` in seconds, `p` positions, `q` orientations (body → world).
@@ -68,10 +67,10 @@ pub enum EvalError {
 /// Appends `v` with `digits` decimals, exactly as `format!("{v:.digits$}")` does (the
 /// exact binary value rounded half to even, a negative zero signed) but from integers:
 /// formatting floats was a tenth of a replay that writes a long log's tracks.
-pub fn push_fixed(out: &mut String, v: f64, digits: u32) {
+pub fn push_fixed(out: &mut Vec<u8>, v: f64, digits: u32) {
     // Beyond these the general formatter (its cases are rare: not a pose's numbers).
     if !v.is_finite() || v.abs() >= 1e15 || digits > 9 {
-        let _ = write!(out, "{v:.*}", digits as usize);
+        out.extend_from_slice(format!("{v:.*}", digits as usize).as_bytes());
         return;
     }
     let bits = v.to_bits();
@@ -100,7 +99,7 @@ pub fn push_fixed(out: &mut String, v: f64, digits: u32) {
         }
     };
     if v.is_sign_negative() {
-        out.push('-');
+        out.push(b'-');
     }
     // Both parts fit 64 bits (below 1e15, and below 10^9); the division in 64 bits
     // where the scaled value fits (a pose's numbers: below 1.8e10 at 9 digits), as a
@@ -111,14 +110,14 @@ pub fn push_fixed(out: &mut String, v: f64, digits: u32) {
     };
     push_decimal(out, int, 1);
     if digits > 0 {
-        out.push('.');
+        out.push(b'.');
         push_decimal(out, frac, digits as usize);
     }
 }
 
 /// Appends `n` in decimal, zero-padded to `width` (at most 20) digits: what `write!`
 /// of `{n:0width$}` gives, without the formatter's machinery (a third of `push_fixed`).
-fn push_decimal(out: &mut String, mut n: u64, width: usize) {
+fn push_decimal(out: &mut Vec<u8>, mut n: u64, width: usize) {
     let mut buf = [b'0'; 20];
     let mut start = buf.len();
     loop {
@@ -130,8 +129,7 @@ fn push_decimal(out: &mut String, mut n: u64, width: usize) {
         }
     }
     let start = start.min(buf.len() - width.min(buf.len()));
-    // ASCII digits: pushed as chars, with no UTF-8 check of the buffer.
-    out.extend(buf[start..].iter().map(|&b| char::from(b)));
+    out.extend_from_slice(&buf[start..]);
 }
 
 impl Trajectory {
@@ -175,16 +173,18 @@ impl Trajectory {
     /// rest) so the same trajectory always gives the same bytes.
     pub fn to_tum(&self) -> Result<String, EvalError> {
         self.check()?;
-        let mut s = String::with_capacity(self.len() * 96);
+        // Bytes, made a string once: ASCII throughout, so that never copies.
+        let mut s = Vec::with_capacity(self.len() * 96);
         for ((t, p), q) in self.t.iter().zip(&self.p).zip(&self.q) {
             push_fixed(&mut s, *t, 6);
             for v in [p.x, p.y, p.z, q.i, q.j, q.k, q.w] {
-                s.push(' ');
+                s.push(b' ');
                 push_fixed(&mut s, v, 9);
             }
-            s.push('\n');
+            s.push(b'\n');
         }
-        Ok(s)
+        Ok(String::from_utf8(s)
+            .unwrap_or_else(|e| String::from_utf8_lossy(e.as_bytes()).into_owned()))
     }
 
     pub fn write_tum(&self, path: &Path) -> Result<(), EvalError> {
@@ -657,9 +657,13 @@ mod tests {
         }
         for v in cases {
             for digits in [0, 1, 6, 9] {
-                let mut s = String::new();
+                let mut s = Vec::new();
                 push_fixed(&mut s, v, digits);
-                assert_eq!(s, format!("{v:.*}", digits as usize), "{v:e} {digits}");
+                assert_eq!(
+                    String::from_utf8_lossy(&s),
+                    format!("{v:.*}", digits as usize),
+                    "{v:e} {digits}"
+                );
             }
         }
     }
@@ -668,9 +672,13 @@ mod tests {
     fn decimal_digits_are_the_formatters_zero_padded() {
         for n in [0, 7, 10, 99, 1_000_000_000, 123_456_789_012, u64::MAX] {
             for width in [1, 2, 6, 9, 20] {
-                let mut s = String::from("x");
+                let mut s = b"x".to_vec();
                 push_decimal(&mut s, n, width);
-                assert_eq!(s, format!("x{n:0width$}"), "{n} {width}");
+                assert_eq!(
+                    String::from_utf8_lossy(&s),
+                    format!("x{n:0width$}"),
+                    "{n} {width}"
+                );
             }
         }
     }

@@ -65,6 +65,9 @@ pub struct Recorder {
     geodetic_origins: BTreeMap<String, LocalEnu>,
     /// Newest flow `OF_sum` point taken per source.
     flow_taken: BTreeMap<String, i64>,
+    /// The last `OF_sum` point looked at (time, source): the same point stays there
+    /// for the samples between two flow samples, and needs no second look.
+    of_sum_seen: Option<(i64, String)>,
     /// Time origin, µs (t = 0 in the files).
     pub t0_us: i64,
 }
@@ -161,20 +164,34 @@ impl Recorder {
                 .push(e.to_json(self.secs(e.time_us), false).to_string());
         }
         if let Some(p) = est.debug().series.get(&DebugTopic::OfSum) {
-            if self
-                .flow_taken
-                .get(&p.source)
-                .is_none_or(|&t| p.time_us > t)
-            {
-                self.flow_taken.insert(p.source.clone(), p.time_us);
-                let t = self.secs(p.time_us);
-                let v = Vector3::from(p.value);
-                push(
-                    self.sources.entry(p.source.clone()).or_default(),
-                    t,
-                    v,
-                    UnitQuaternion::identity(),
+            let seen = self
+                .of_sum_seen
+                .as_ref()
+                .is_some_and(|(t, s)| *t == p.time_us && *s == p.source);
+            if !seen {
+                let taken = crate::estimator::get_or_insert_with(
+                    &mut self.flow_taken,
+                    p.source.as_str(),
+                    || (p.source.clone(), i64::MIN),
                 );
+                if p.time_us > *taken {
+                    *taken = p.time_us;
+                    let t = self.secs(p.time_us);
+                    let v = Vector3::from(p.value);
+                    push(
+                        self.sources.entry(p.source.clone()).or_default(),
+                        t,
+                        v,
+                        UnitQuaternion::identity(),
+                    );
+                }
+                match &mut self.of_sum_seen {
+                    Some((t, s)) => {
+                        *t = p.time_us;
+                        s.clone_from(&p.source);
+                    }
+                    none => *none = Some((p.time_us, p.source.clone())),
+                }
             }
         }
         // The pose's time first: most samples come within the output interval.
