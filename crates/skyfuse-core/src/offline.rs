@@ -72,6 +72,12 @@ pub struct Recorder {
     pub t0_us: i64,
 }
 
+/// The track of source `id`: its key is made once (most samples, the IMU's, are not
+/// positions and make none).
+fn track<'a>(sources: &'a mut BTreeMap<String, Trajectory>, id: &str) -> &'a mut Trajectory {
+    crate::estimator::get_or_insert_with(sources, id, || (id.to_string(), Trajectory::default()))
+}
+
 fn push(tr: &mut Trajectory, t: f64, p: Vector3<f64>, q: UnitQuaternion<f64>) {
     if p.iter().all(|v| v.is_finite()) && q.coords.iter().all(|v| v.is_finite()) {
         tr.t.push(t);
@@ -97,15 +103,6 @@ impl Recorder {
         let Some(stamp) = s.stamp_us else { return };
         let t = self.secs(stamp);
         let id: &str = &s.source;
-        // Most samples (the IMU's) are not positions: a source's key is made once.
-        fn track<'a>(
-            sources: &'a mut BTreeMap<String, Trajectory>,
-            id: &str,
-        ) -> &'a mut Trajectory {
-            crate::estimator::get_or_insert_with(sources, id, || {
-                (id.to_string(), Trajectory::default())
-            })
-        }
         match &s.data {
             SensorData::Gnss(g) if g.fix != GnssFixType::NoFix && g.lat_deg.is_finite() => {
                 let origin = *self
@@ -178,12 +175,8 @@ impl Recorder {
                     *taken = p.time_us;
                     let t = self.secs(p.time_us);
                     let v = Vector3::from(p.value);
-                    push(
-                        self.sources.entry(p.source.clone()).or_default(),
-                        t,
-                        v,
-                        UnitQuaternion::identity(),
-                    );
+                    let tr = track(&mut self.sources, &p.source);
+                    push(tr, t, v, UnitQuaternion::identity());
                 }
                 match &mut self.of_sum_seen {
                     Some((t, s)) => {
