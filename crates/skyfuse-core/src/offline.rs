@@ -65,9 +65,6 @@ pub struct Recorder {
     geodetic_origins: BTreeMap<String, LocalEnu>,
     /// Newest flow `OF_sum` point taken per source.
     flow_taken: BTreeMap<String, i64>,
-    /// The last `OF_sum` point looked at (time, source): the same point stays there
-    /// for the samples between two flow samples, and needs no second look.
-    of_sum_seen: Option<(i64, String)>,
     /// Time origin, µs (t = 0 in the files).
     pub t0_us: i64,
 }
@@ -133,10 +130,11 @@ impl Recorder {
                 // simulator's SIM_STATE) in ENU about its own first position.
                 let p = a.local_position.or_else(|| {
                     let (lat, lon, alt) = a.geodetic?;
-                    let o = *self
-                        .geodetic_origins
-                        .entry(id.to_string())
-                        .or_insert_with(|| LocalEnu::new(lat, lon, alt));
+                    let o = *crate::estimator::get_or_insert_with(
+                        &mut self.geodetic_origins,
+                        id,
+                        || (id.to_string(), LocalEnu::new(lat, lon, alt)),
+                    );
                     Some(o.to_enu(lat, lon, alt))
                 });
                 if let Some(p) = p {
@@ -161,30 +159,17 @@ impl Recorder {
                 .push(e.to_json(self.secs(e.time_us), false).to_string());
         }
         if let Some(p) = est.debug().series.get(&DebugTopic::OfSum) {
-            let seen = self
-                .of_sum_seen
-                .as_ref()
-                .is_some_and(|(t, s)| *t == p.time_us && *s == p.source);
-            if !seen {
-                let taken = crate::estimator::get_or_insert_with(
-                    &mut self.flow_taken,
-                    p.source.as_str(),
-                    || (p.source.clone(), i64::MIN),
-                );
-                if p.time_us > *taken {
-                    *taken = p.time_us;
-                    let t = self.secs(p.time_us);
-                    let v = Vector3::from(p.value);
-                    let tr = track(&mut self.sources, &p.source);
-                    push(tr, t, v, UnitQuaternion::identity());
-                }
-                match &mut self.of_sum_seen {
-                    Some((t, s)) => {
-                        *t = p.time_us;
-                        s.clone_from(&p.source);
-                    }
-                    none => *none = Some((p.time_us, p.source.clone())),
-                }
+            let taken = crate::estimator::get_or_insert_with(
+                &mut self.flow_taken,
+                p.source.as_str(),
+                || (p.source.clone(), i64::MIN),
+            );
+            if p.time_us > *taken {
+                *taken = p.time_us;
+                let t = self.secs(p.time_us);
+                let v = Vector3::from(p.value);
+                let tr = track(&mut self.sources, &p.source);
+                push(tr, t, v, UnitQuaternion::identity());
             }
         }
         // The pose's time first: most samples come within the output interval.

@@ -179,16 +179,17 @@ fn flow_height(core: &Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow) ->
 pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow) {
     let cfg = ctx.cfg;
     let sc = cfg.source(source);
-    if f.quality < cfg.flow_min_quality {
-        core.reject(t, source, "quality below flow_min_quality", ctx);
-        super::get_or_insert_with(&mut core.flow, source, || {
-            (source.to_string(), FlowState::default())
-        })
-        .last_t = Some(t);
-        return;
-    }
-    if core.att.known() && cos_tilt(&core.att.q) < cfg.range_max_tilt_rad.cos() {
-        core.reject(t, source, "tilt too large for the flow", ctx);
+    // Rejected before compensation: the sample still ends the flow's integration
+    // interval.
+    let unusable = if f.quality < cfg.flow_min_quality {
+        Some("quality below flow_min_quality")
+    } else if core.att.known() && cos_tilt(&core.att.q) < cfg.range_max_tilt_rad.cos() {
+        Some("tilt too large for the flow")
+    } else {
+        None
+    };
+    if let Some(why) = unusable {
+        core.reject(t, source, why, ctx);
         super::get_or_insert_with(&mut core.flow, source, || {
             (source.to_string(), FlowState::default())
         })

@@ -235,15 +235,9 @@ impl Wrls {
                     dvar[axis] = no_delta_var * period;
                 }
                 for (s, _, var) in scaled(axis) {
-                    let w = f.weight(var);
-                    match self.weights.get_mut(s) {
-                        Some(ws) => ws[axis] = w,
-                        None => {
-                            let mut ws = [0.0; 3];
-                            ws[axis] = w;
-                            self.weights.insert(s.clone(), ws);
-                        }
-                    }
+                    let ws =
+                        super::get_or_insert_with(&mut self.weights, s, || (s.clone(), [0.0; 3]));
+                    ws[axis] = f.weight(var);
                 }
             }
             // The prediction and the absolute measurements, by the same rule.
