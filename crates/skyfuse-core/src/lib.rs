@@ -18,6 +18,7 @@
 //! - [`replay`]: recorded flights as samples (PX4 ULog and CSV, MAVLink tlogs).
 //! - [`eval`]: TUM trajectories and the APE metric as evo computes it.
 //! - [`offline`]: scenario and replay runs through the fusion core, files and scores.
+//! - [`source_map`]: per-source state looked up by name on every sample.
 //! - [`sync`]: a lock that outlives a panicking holder.
 //!
 //! Comments cite "seed 000"–"seed 004", the design documents the project grew from;
@@ -34,5 +35,6 @@ pub mod offline;
 pub mod replay;
 pub mod sample;
 pub mod sim;
+pub mod source_map;
 pub mod sync;
 pub mod verdict;

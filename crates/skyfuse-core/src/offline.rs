@@ -14,9 +14,9 @@ use crate::health::HealthConfig;
 use crate::sample::{GnssFixType, Sample, SensorData, SensorKind};
 use crate::sim::scenario::Scenario;
 use crate::sim::truth::truth_of;
+use crate::source_map::SourceMap;
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;
-use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
@@ -57,22 +57,22 @@ pub struct Recorder {
     pub airborne: Vec<(f64, bool)>,
     /// Per position source, raw (GNSS in local ENU from its first fix, odometry in its
     /// own frame, the autopilot's estimate) or as integrated by the estimator (flow).
-    pub sources: BTreeMap<String, Trajectory>,
+    pub sources: SourceMap<Trajectory>,
     pub events: Vec<String>,
     last_fused_us: Option<i64>,
     gnss_origin: Option<LocalEnu>,
     /// ENU origins of geodetic estimates, per source.
-    geodetic_origins: BTreeMap<String, LocalEnu>,
+    geodetic_origins: SourceMap<LocalEnu>,
     /// Newest flow `OF_sum` point taken per source.
-    flow_taken: BTreeMap<String, i64>,
+    flow_taken: SourceMap<i64>,
     /// Time origin, µs (t = 0 in the files).
     pub t0_us: i64,
 }
 
 /// The track of source `id`: its key is made once (most samples, the IMU's, are not
 /// positions and make none).
-fn track<'a>(sources: &'a mut BTreeMap<String, Trajectory>, id: &str) -> &'a mut Trajectory {
-    crate::estimator::get_or_insert_with(sources, id, || (id.to_string(), Trajectory::default()))
+fn track<'a>(sources: &'a mut SourceMap<Trajectory>, id: &str) -> &'a mut Trajectory {
+    sources.get_or_insert_with(id, Trajectory::default)
 }
 
 fn push(tr: &mut Trajectory, t: f64, p: Vector3<f64>, q: UnitQuaternion<f64>) {
@@ -130,11 +130,9 @@ impl Recorder {
                 // simulator's SIM_STATE) in ENU about its own first position.
                 let p = a.local_position.or_else(|| {
                     let (lat, lon, alt) = a.geodetic?;
-                    let o = *crate::estimator::get_or_insert_with(
-                        &mut self.geodetic_origins,
-                        id,
-                        || (id.to_string(), LocalEnu::new(lat, lon, alt)),
-                    );
+                    let o = *self
+                        .geodetic_origins
+                        .get_or_insert_with(id, || LocalEnu::new(lat, lon, alt));
                     Some(o.to_enu(lat, lon, alt))
                 });
                 if let Some(p) = p {
@@ -159,11 +157,7 @@ impl Recorder {
                 .push(e.to_json(self.secs(e.time_us), false).to_string());
         }
         if let Some(p) = est.debug().series.get(&DebugTopic::OfSum) {
-            let taken = crate::estimator::get_or_insert_with(
-                &mut self.flow_taken,
-                p.source.as_str(),
-                || (p.source.clone(), i64::MIN),
-            );
+            let taken = self.flow_taken.get_or_insert_with(&p.source, || i64::MIN);
             if p.time_us > *taken {
                 *taken = p.time_us;
                 let t = self.secs(p.time_us);
@@ -447,7 +441,7 @@ fn finish(
                 name: rn,
                 max_diff_s,
             } => (
-                rec.sources.get(*rn).map(|r| windowed(r, window)),
+                rec.sources.get(rn).map(|r| windowed(r, window)),
                 ApeOptions {
                     max_diff_s: *max_diff_s,
                     ..ApeOptions::default()
@@ -587,7 +581,7 @@ fn event_time(line: &str) -> f64 {
 /// kinds, count and first and last time (its mean rate), and the first sample's stamp.
 #[derive(Debug, Default, PartialEq)]
 pub(crate) struct SampleSurvey {
-    sources: BTreeMap<String, SourceSurvey>,
+    sources: SourceMap<SourceSurvey>,
     /// The first sample's time and stamp.
     first: Option<(i64, Option<i64>)>,
     samples: usize,
@@ -641,16 +635,13 @@ impl SampleSurvey {
             self.first = Some((t, s.stamp_us));
         }
         let kind = s.data.kind();
-        let e = crate::estimator::get_or_insert_with(&mut self.sources, s.source.as_ref(), || {
-            let first = SourceSurvey {
-                first_kind: kind,
-                last_kind: kind,
-                vehicle_state: false,
-                count: 0,
-                first_t: t,
-                last_t: t,
-            };
-            (s.source.to_string(), first)
+        let e = self.sources.get_or_insert_with(&s.source, || SourceSurvey {
+            first_kind: kind,
+            last_kind: kind,
+            vehicle_state: false,
+            count: 0,
+            first_t: t,
+            last_t: t,
         });
         e.count += 1;
         if earlier(t, e.first_t) {

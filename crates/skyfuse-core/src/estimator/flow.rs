@@ -190,10 +190,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     };
     if let Some(why) = unusable {
         core.reject(t, source, why, ctx);
-        super::get_or_insert_with(&mut core.flow, source, || {
-            (source.to_string(), FlowState::default())
-        })
-        .last_t = Some(t);
+        core.flow
+            .get_or_insert_with(source, FlowState::default)
+            .last_t = Some(t);
         return;
     }
     let Some(height) = flow_height(core, ctx, t, source, f) else {
@@ -209,7 +208,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     let rate_noise = sc.noise.unwrap_or(cfg.flow_rate_noise);
     let fv = if let Some(rate) = f.rate {
         if !rate.iter().all(|v| v.is_finite()) || rate.amax() > sc.max_rate {
-            super::put(&mut core.flow, source, st);
+            core.flow.put(source, st);
             core.reject(t, source, "flow rate not finite or above max_rate", ctx);
             return;
         }
@@ -218,7 +217,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
             None => match st.lpf.y.or(core.imu.rate.map(|r| r.1)) {
                 Some(g) => g.xy(),
                 None => {
-                    super::put(&mut core.flow, source, st);
+                    core.flow.put(source, st);
                     core.reject(t, source, "no gyro for rotation compensation", ctx);
                     return;
                 }
@@ -252,7 +251,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
             scaled_rate: Vector2::zeros(),
         }
     } else {
-        super::put(&mut core.flow, source, st);
+        core.flow.put(source, st);
         core.reject(t, source, "flow sample without rate or velocity", ctx);
         return;
     };
@@ -284,7 +283,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
         let var = Vector3::new(fv.var.x * dt * dt, fv.var.y * dt * dt, f64::INFINITY);
         core.wrls.add_relative(source, d, var, dt);
     }
-    super::put(&mut core.flow, source, st);
+    core.flow.put(source, st);
     if low {
         core.reject(t, source, "below flow_min_height_m", ctx);
         return;

@@ -11,14 +11,14 @@ use super::config::EstimatorConfig;
 use super::{Core, Ctx, DebugTopic, Event};
 use crate::geo::LocalEnu;
 use crate::sample::{GnssFix, GnssFixType};
+use crate::source_map::SourceMap;
 use nalgebra::{Matrix3, Vector3};
-use std::collections::BTreeMap;
 
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct GnssState {
     pub origin: Option<LocalEnu>,
     /// Last ENU position per source (for the frame deltas).
-    pub last: BTreeMap<String, (i64, Vector3<f64>)>,
+    pub last: SourceMap<(i64, Vector3<f64>)>,
     /// Last time a GNSS fix was fused, µs.
     pub last_fused: Option<i64>,
 }
@@ -105,7 +105,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     if let Some((_, last)) = core.gnss.last.get(source) {
         core.debug_point(t, DebugTopic::OriginDgps, source, enu - last);
     }
-    super::put(&mut core.gnss.last, source, (t, enu));
+    core.gnss.last.put(source, (t, enu));
     let vel = fix
         .velocity
         .filter(|v| cfg.gnss_fuse_velocity && v.iter().all(|x| x.is_finite()));

@@ -54,10 +54,10 @@ pub use flow::CalState;
 
 use crate::event;
 use crate::sample::{Sample, SensorData, SensorKind};
+use crate::source_map::SourceMap;
 use ekf::{IDX_P, IDX_V};
 use nalgebra::{Matrix3, Vector3};
 use output::{Base, OutputPredictor};
-use std::borrow::Borrow;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
 use timing::SourceClocks;
@@ -68,34 +68,6 @@ pub use status::{
     CalibrationStatus, DebugPoint, DebugSeries, DebugTopic, EstimatorStatus, FusedPose,
     SourceStatus,
 };
-
-/// `map[key]`, made by `new` on first use: a lookup by borrowed key, so the per-sample
-/// paths allocate a key only the first time (`entry` would take an owned one each time).
-/// `new` returns the entry's owned key, equal to `key`.
-pub(crate) fn get_or_insert_with<'a, K, V, Q>(
-    map: &'a mut BTreeMap<K, V>,
-    key: &Q,
-    new: impl FnOnce() -> (K, V),
-) -> &'a mut V
-where
-    K: Borrow<Q> + Ord,
-    Q: Ord + ?Sized,
-{
-    if !map.contains_key(key) {
-        let (k, v) = new();
-        map.insert(k, v);
-    }
-    map.get_mut(key).expect("inserted above under the same key")
-}
-
-/// `map[key] = value`, returning the value it replaces: like `insert`, but the key is
-/// allocated only when it is new (per-source state is put back with every sample).
-pub(crate) fn put<V>(map: &mut BTreeMap<String, V>, key: &str, value: V) -> Option<V> {
-    match map.get_mut(key) {
-        Some(slot) => Some(std::mem::replace(slot, value)),
-        None => map.insert(key.to_string(), value),
-    }
-}
 
 /// Order of samples at equal times: prediction inputs first.
 pub fn rank(k: SensorKind) -> u8 {
@@ -174,11 +146,11 @@ pub struct Estimator {
     fused: usize,
     /// The newest sample time seen (the present, host clock).
     newest_t: Option<i64>,
-    lateness: BTreeMap<Arc<str>, Lateness>,
+    lateness: SourceMap<Lateness>,
     output: OutputPredictor,
     snaps: VecDeque<(Key, Core)>,
     clocks: SourceClocks,
-    usable: BTreeMap<String, (bool, String)>,
+    usable: SourceMap<(bool, String)>,
     gates: [f64; 7],
     seq: u64,
     /// Samples older than this are dropped (history cleared by a command).
@@ -211,12 +183,12 @@ impl Estimator {
             log: VecDeque::new(),
             fused: 0,
             newest_t: None,
-            lateness: BTreeMap::new(),
+            lateness: SourceMap::new(),
             output: OutputPredictor::new((cfg.imu_timeout_ms * 1000.0) as i64),
             cfg,
             snaps: VecDeque::new(),
             clocks: SourceClocks::default(),
-            usable: BTreeMap::new(),
+            usable: SourceMap::new(),
             gates,
             seq: 0,
             barrier: None,
@@ -314,14 +286,12 @@ impl Estimator {
         }
         let newest = self.newest_t.map_or(t, |n| n.max(t));
         self.newest_t = Some(newest);
-        get_or_insert_with(&mut self.lateness, src, || {
-            let first = Lateness {
+        self.lateness
+            .get_or_insert_with(src, || Lateness {
                 window_start: newest,
                 ..Lateness::default()
-            };
-            (s.source.clone(), first)
-        })
-        .observe(newest, newest - t);
+            })
+            .observe(newest, newest - t);
         let usable = self.usable.get(src).is_none_or(|u| u.0);
         let fused_to = match &s.data {
             SensorData::Imu(imu) if usable && imu::checks(imu).is_ok() => {
@@ -584,8 +554,7 @@ impl Estimator {
         reason: &str,
     ) -> Vec<EstimatorEvent> {
         let before = self.usable.get(source).is_none_or(|u| u.0);
-        self.usable
-            .insert(source.to_string(), (usable, reason.to_string()));
+        self.usable.put(source, (usable, reason.to_string()));
         if before == usable {
             return vec![];
         }
@@ -671,7 +640,11 @@ impl Estimator {
     pub fn state_summary(&self) -> EstimatorStatus {
         let c = &self.core;
         let invalid_reason = self.invalid_reason();
-        let mut sources = c.stats.clone();
+        let mut sources: BTreeMap<String, SourceStatus> = c
+            .stats
+            .iter()
+            .map(|(s, st)| (s.clone(), st.clone()))
+            .collect();
         for (s, st) in sources.iter_mut() {
             st.usable = self.usable.get(s).is_none_or(|u| u.0);
             st.segment = c.odom.get(s).map(|o| o.segment);

@@ -197,7 +197,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
         );
     }
     let Some(al) = st.align.clone() else {
-        super::put(&mut core.odom, source, st);
+        core.odom.put(source, st);
         return;
     };
     let z = al.rot * b.pos + al.trans;
@@ -219,7 +219,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
         }
     }
     st.last = Some((t, b.pos, v_odom_now));
-    super::put(&mut core.odom, source, st);
+    core.odom.put(source, st);
 
     // Fuse position: z = p + b.
     let c = match sc.noise {

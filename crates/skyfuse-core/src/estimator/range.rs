@@ -75,7 +75,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, r: &Range) {
         return;
     }
     // Kept as the flow's scale only when it is a distance to the ground below.
-    let previous = super::put(&mut core.range, source, (t, r.distance_m));
+    let previous = core.range.put(source, (t, r.distance_m));
     let stepped = previous.is_some_and(|(tp, dp)| {
         let dt = (t - tp) as f64 * 1e-6;
         dt > 0.0 && dt < 1.0 && (r.distance_m - dp).abs() > RANGE_STEP_SPEED * dt

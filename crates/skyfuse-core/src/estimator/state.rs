@@ -15,13 +15,14 @@ use super::wrls::{Wrls, WrlsOutput};
 use super::{DebugSeries, DebugTopic, EstimatorConfig, EstimatorEvent, Event, Mode, SourceStatus};
 use crate::event;
 use crate::sample::{SensorData, SensorKind};
+use crate::source_map::SourceMap;
 use nalgebra::{Matrix3, Vector3};
 use std::collections::BTreeMap;
 
 /// Read-only context of one processing step.
 pub(crate) struct Ctx<'a> {
     pub cfg: &'a EstimatorConfig,
-    pub usable: &'a BTreeMap<String, (bool, String)>,
+    pub usable: &'a SourceMap<(bool, String)>,
     pub gates: [f64; 7],
 }
 
@@ -47,11 +48,11 @@ pub(crate) struct Core {
     pub att: AttitudeState,
     pub imu: ImuState,
     pub gnss: GnssState,
-    pub odom: BTreeMap<String, OdomState>,
-    pub flow: BTreeMap<String, FlowState>,
+    pub odom: SourceMap<OdomState>,
+    pub flow: SourceMap<FlowState>,
     pub flow_cal: FlowCalibrator,
     /// Latest range per source: (time, slant distance).
-    pub range: BTreeMap<String, (i64, f64)>,
+    pub range: SourceMap<(i64, f64)>,
     /// On the ground / at rest, and the constraints without horizontal aiding.
     pub ground: ground::GroundState,
     pub wrls: Wrls,
@@ -60,11 +61,11 @@ pub(crate) struct Core {
     pub wrls_ekf_last: Option<i64>,
     pub monitors: Monitors,
     pub reset_counter: u8,
-    pub stats: BTreeMap<String, SourceStatus>,
+    pub stats: SourceMap<SourceStatus>,
     pub debug: DebugSeries,
     pub events: Vec<EstimatorEvent>,
     /// When an event of each kind (outer key) was last emitted for each source.
-    pub throttle: BTreeMap<&'static str, BTreeMap<String, i64>>,
+    pub throttle: BTreeMap<&'static str, SourceMap<i64>>,
     pub last_aiding: Option<i64>,
     /// Last horizontal aiding, real or the ground constraint (validity).
     pub last_h_valid: Option<i64>,
@@ -141,10 +142,11 @@ impl Core {
         ctx: &Ctx,
     ) {
         let every = (ctx.cfg.event_throttle_ms * 1000.0) as i64;
-        let last =
-            super::get_or_insert_with(self.throttle.entry(kind).or_default(), source, || {
-                (source.to_string(), i64::MIN)
-            });
+        let last = self
+            .throttle
+            .entry(kind)
+            .or_default()
+            .get_or_insert_with(source, || i64::MIN);
         if *last != i64::MIN && t - *last < every && t >= *last {
             return;
         }
@@ -156,9 +158,7 @@ impl Core {
 
     /// The statistics of `source` (created on its first sample; no allocation after).
     pub(super) fn stat(&mut self, source: &str) -> &mut SourceStatus {
-        super::get_or_insert_with(&mut self.stats, source, || {
-            (source.to_string(), SourceStatus::default())
-        })
+        self.stats.get_or_insert_with(source, SourceStatus::default)
     }
 
     /// A sample failed its checks.

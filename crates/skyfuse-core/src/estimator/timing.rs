@@ -16,7 +16,8 @@
 
 use super::EstimatorConfig;
 use crate::sample::Sample;
-use std::collections::{BTreeMap, VecDeque};
+use crate::source_map::SourceMap;
+use std::collections::VecDeque;
 
 /// Stamps are compared with arrival over this span, µs.
 pub const RATE_SPAN_US: i64 = 2_000_000;
@@ -106,7 +107,7 @@ impl ClockMap {
 
 /// Every source's clock mapping.
 #[derive(Debug, Clone, Default)]
-pub struct SourceClocks(BTreeMap<String, ClockMap>);
+pub struct SourceClocks(SourceMap<ClockMap>);
 
 impl SourceClocks {
     /// Host time of `s`, µs: its source's mapping with `cfg`'s latency (per source, else
@@ -116,7 +117,7 @@ impl SourceClocks {
         let latency = cfg.latency_us(src, s.data.kind());
         let window = (cfg.clock_window_s * 1e6) as i64;
         let jump = (cfg.clock_jump_s * 1e6) as i64;
-        super::get_or_insert_with(&mut self.0, src, || (src.to_string(), ClockMap::default())).map(
+        self.0.get_or_insert_with(src, ClockMap::default).map(
             s.stamp_us,
             s.arrival_us,
             latency,

@@ -10,8 +10,8 @@
 //! inverse-variance rule, which is what makes it *recursive*: without them it is exactly
 //! the seed's accumulated displacement.
 
+use crate::source_map::SourceMap;
 use nalgebra::{Matrix3, Vector3};
-use std::collections::BTreeMap;
 
 #[derive(Debug, Clone, PartialEq, Default)]
 struct RelAcc {
@@ -45,17 +45,17 @@ pub struct Wrls {
     pub last_delta: Vector3<f64>,
     pub last_delta_var: Vector3<f64>,
     /// Weights of the last tick per relative source and axis.
-    pub weights: BTreeMap<String, [f64; 3]>,
+    pub weights: SourceMap<[f64; 3]>,
     /// Height of the ground in the frame (0 at the take-off pose; uncertain once GNSS
     /// anchors the frame) and its variance: range heights are `z − terrain`.
     pub terrain: f64,
     pub terrain_var: f64,
     /// Displacements accumulated in this tick (zero `covered`: none).
-    rel: BTreeMap<String, RelAcc>,
+    rel: SourceMap<RelAcc>,
     /// Latest absolute position (z, var) per source in this tick.
-    abs: BTreeMap<String, Option<Absolute>>,
+    abs: SourceMap<Option<Absolute>>,
     /// Latest height above the terrain (h, var) per range source in this tick.
-    heights: BTreeMap<String, Option<(f64, f64)>>,
+    heights: SourceMap<Option<(f64, f64)>>,
 }
 
 /// Σσ⁻² of some estimates: the inverse-variance weights a_i = σ_i⁻² / Σσ⁻² and the
@@ -116,9 +116,7 @@ impl Wrls {
         if self.x.is_none() || !delta.iter().all(|v| v.is_finite()) {
             return;
         }
-        let acc = super::get_or_insert_with(&mut self.rel, source, || {
-            (source.to_string(), RelAcc::default())
-        });
+        let acc = self.rel.get_or_insert_with(source, RelAcc::default);
         acc.delta += delta;
         acc.var += var;
         acc.covered += dt;
@@ -130,8 +128,7 @@ impl Wrls {
         if self.x.is_none() {
             return;
         }
-        *super::get_or_insert_with(&mut self.abs, source, || (source.to_string(), None)) =
-            Some((z, var));
+        *self.abs.get_or_insert_with(source, || None) = Some((z, var));
     }
 
     /// A height above the terrain (range finder), variance `var`.
@@ -139,8 +136,7 @@ impl Wrls {
         if self.x.is_none() || !h.is_finite() {
             return;
         }
-        *super::get_or_insert_with(&mut self.heights, source, || (source.to_string(), None)) =
-            Some((h, var));
+        *self.heights.get_or_insert_with(source, || None) = Some((h, var));
     }
 
     /// The frame moved by an uncertain amount (covariance `s`): the position and the
@@ -179,7 +175,7 @@ impl Wrls {
         let abs = self
             .abs
             .iter()
-            .filter(|(src, _)| !self.heights.get(*src).is_some_and(Option::is_some))
+            .filter(|(src, _)| !self.heights.get(src).is_some_and(Option::is_some))
             .filter_map(|(src, a)| a.map(|a| (src.as_str(), a)));
         MergeBySource {
             a: abs.peekable(),
@@ -235,8 +231,7 @@ impl Wrls {
                     dvar[axis] = no_delta_var * period;
                 }
                 for (s, _, var) in scaled(axis) {
-                    let ws =
-                        super::get_or_insert_with(&mut self.weights, s, || (s.clone(), [0.0; 3]));
+                    let ws = self.weights.get_or_insert_with(s, || [0.0; 3]);
                     ws[axis] = f.weight(var);
                 }
             }

@@ -23,6 +23,7 @@ mod checks;
 
 use crate::estimator::EstimatorStatus;
 use crate::sample::{Sample, SensorData, SensorKind};
+use crate::source_map::SourceMap;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -249,7 +250,7 @@ impl Transition {
 #[derive(Debug, Clone)]
 pub struct HealthMonitor {
     cfg: HealthConfig,
-    sensors: BTreeMap<String, SensorHealth>,
+    sensors: SourceMap<SensorHealth>,
     /// Last IMU sample time and the last time the IMU showed motion.
     imu_last_us: Option<i64>,
     imu_moving_us: Option<i64>,
@@ -290,7 +291,7 @@ pub const ESTIMATOR_ID: &str = "estimator";
 
 impl HealthMonitor {
     pub fn new(cfg: HealthConfig, sensors: &[InputSpec]) -> Self {
-        let mut map = BTreeMap::new();
+        let mut map = SourceMap::new();
         for s in sensors {
             map.insert(
                 s.id.clone(),
@@ -329,7 +330,7 @@ impl HealthMonitor {
 
     /// A sample arrived and passed decoding (time `t`: host µs).
     pub fn on_sample(&mut self, s: &Sample, t: i64) {
-        let cfg = self.cfg.clone();
+        let cfg = &self.cfg;
         let Some(h) = self.sensors.get_mut(s.source.as_ref()) else {
             return;
         };
@@ -338,7 +339,7 @@ impl HealthMonitor {
         while h.arrivals.front().is_some_and(|&a| t - a > 2_000_000) {
             h.arrivals.pop_front();
         }
-        let mut found = checks::check_sample(&cfg, &mut h.checks, &s.data, t);
+        let mut found = checks::check_sample(cfg, &mut h.checks, &s.data, t);
         match &s.data {
             SensorData::Imu(imu) => {
                 // Still: no rotation and specific force of gravity alone, tightly (cruise at
@@ -373,7 +374,7 @@ impl HealthMonitor {
                         .is_some_and(|m| t - m > IMU_STILL_AFTER_US);
                 let speed = o.velocity.map(|v| v.norm()).unwrap_or(0.0);
                 found.extend(checks::vo_imu_consistency(
-                    &cfg,
+                    cfg,
                     &mut h.checks,
                     speed,
                     still,
