@@ -47,9 +47,11 @@ impl<V> SourceMap<V> {
         self.entries.iter().position(|(k, _)| same(k, key))
     }
 
-    /// Where `key` goes to keep the entries sorted (it is not in the map).
-    fn slot(&self, key: &str) -> usize {
-        self.entries.partition_point(|(k, _)| k.as_str() < key)
+    /// Adds `key`, which is not in the map, where it keeps the entries sorted.
+    fn add(&mut self, key: &str, value: V) -> usize {
+        let i = self.entries.partition_point(|(k, _)| k.as_str() < key);
+        self.entries.insert(i, (key.to_string(), value));
+        i
     }
 
     #[inline]
@@ -62,21 +64,13 @@ impl<V> SourceMap<V> {
         self.index(key).map(|i| &mut self.entries[i].1)
     }
 
-    pub fn contains_key(&self, key: &str) -> bool {
-        self.index(key).is_some()
-    }
-
     /// `map[key]`, made by `new` on first use: one search, and the key is allocated only
     /// then.
     #[inline]
     pub fn get_or_insert_with(&mut self, key: &str, new: impl FnOnce() -> V) -> &mut V {
         let i = match self.index(key) {
             Some(i) => i,
-            None => {
-                let i = self.slot(key);
-                self.entries.insert(i, (key.to_string(), new()));
-                i
-            }
+            None => self.add(key, new()),
         };
         &mut self.entries[i].1
     }
@@ -87,27 +81,10 @@ impl<V> SourceMap<V> {
         match self.get_mut(key) {
             Some(slot) => Some(std::mem::replace(slot, value)),
             None => {
-                let i = self.slot(key);
-                self.entries.insert(i, (key.to_string(), value));
+                self.add(key, value);
                 None
             }
         }
-    }
-
-    /// `map[key] = value` with an owned key, returning the value it replaces.
-    pub fn insert(&mut self, key: String, value: V) -> Option<V> {
-        match self.get_mut(&key) {
-            Some(slot) => Some(std::mem::replace(slot, value)),
-            None => {
-                let i = self.slot(&key);
-                self.entries.insert(i, (key, value));
-                None
-            }
-        }
-    }
-
-    pub fn remove(&mut self, key: &str) -> Option<V> {
-        self.index(key).map(|i| self.entries.remove(i).1)
     }
 
     pub fn retain(&mut self, mut keep: impl FnMut(&String, &mut V) -> bool) {
@@ -116,14 +93,6 @@ impl<V> SourceMap<V> {
 
     pub fn clear(&mut self) {
         self.entries.clear();
-    }
-
-    pub fn len(&self) -> usize {
-        self.entries.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.entries.is_empty()
     }
 
     /// In name order, as a `BTreeMap<String, V>` iterates.
@@ -137,36 +106,12 @@ impl<V> SourceMap<V> {
         self.entries.iter_mut().map(|(k, v)| (&*k, v))
     }
 
-    pub fn keys(&self) -> impl DoubleEndedIterator<Item = &String> + ExactSizeIterator {
-        self.entries.iter().map(|(k, _)| k)
-    }
-
     pub fn values(&self) -> impl DoubleEndedIterator<Item = &V> + ExactSizeIterator {
         self.entries.iter().map(|(_, v)| v)
     }
 
     pub fn values_mut(&mut self) -> impl DoubleEndedIterator<Item = &mut V> + ExactSizeIterator {
         self.entries.iter_mut().map(|(_, v)| v)
-    }
-}
-
-impl<V> FromIterator<(String, V)> for SourceMap<V> {
-    fn from_iter<I: IntoIterator<Item = (String, V)>>(items: I) -> Self {
-        let mut map = Self::new();
-        for (k, v) in items {
-            map.insert(k, v);
-        }
-        map
-    }
-}
-
-impl<V> std::ops::Index<&str> for SourceMap<V> {
-    type Output = V;
-
-    /// `map[key]`; panics when `key` is not in the map, as `BTreeMap`'s does.
-    fn index(&self, key: &str) -> &V {
-        self.get(key)
-            .expect("no entry for this key in the SourceMap")
     }
 }
 
@@ -182,15 +127,6 @@ impl<'a, V> IntoIterator for &'a SourceMap<V> {
     }
 }
 
-impl<V> IntoIterator for SourceMap<V> {
-    type Item = (String, V);
-    type IntoIter = std::vec::IntoIter<(String, V)>;
-
-    fn into_iter(self) -> Self::IntoIter {
-        self.entries.into_iter()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -200,9 +136,7 @@ mod tests {
     #[derive(Debug, Clone)]
     enum Op {
         Put(String, u32),
-        Insert(String, u32),
         GetOrInsert(String, u32),
-        Remove(String),
         Add(String, u32),
     }
 
@@ -215,9 +149,7 @@ mod tests {
     fn op() -> impl Strategy<Value = Op> {
         prop_oneof![
             (name(), any::<u32>()).prop_map(|(k, v)| Op::Put(k, v)),
-            (name(), any::<u32>()).prop_map(|(k, v)| Op::Insert(k, v)),
             (name(), any::<u32>()).prop_map(|(k, v)| Op::GetOrInsert(k, v)),
-            name().prop_map(Op::Remove),
             (name(), any::<u32>()).prop_map(|(k, v)| Op::Add(k, v)),
         ]
     }
@@ -232,13 +164,11 @@ mod tests {
             for op in ops {
                 match op {
                     Op::Put(k, v) => prop_assert_eq!(ours.put(&k, v), theirs.insert(k, v)),
-                    Op::Insert(k, v) => prop_assert_eq!(ours.insert(k.clone(), v), theirs.insert(k, v)),
                     Op::GetOrInsert(k, v) => {
                         let a = *ours.get_or_insert_with(&k, || v);
                         let b = *theirs.entry(k).or_insert(v);
                         prop_assert_eq!(a, b);
                     }
-                    Op::Remove(k) => prop_assert_eq!(ours.remove(&k), theirs.remove(&k)),
                     Op::Add(k, v) => {
                         if let (Some(a), Some(b)) = (ours.get_mut(&k), theirs.get_mut(&k)) {
                             *a = a.wrapping_add(v);
@@ -246,10 +176,9 @@ mod tests {
                         }
                     }
                 }
-                prop_assert_eq!(ours.len(), theirs.len());
+                prop_assert_eq!(ours.iter().len(), theirs.len());
             }
             prop_assert_eq!(ours.get(&probe), theirs.get(&probe));
-            prop_assert_eq!(ours.contains_key(&probe), theirs.contains_key(&probe));
             let a: Vec<(&String, &u32)> = ours.iter().collect();
             let b: Vec<(&String, &u32)> = theirs.iter().collect();
             prop_assert_eq!(a, b);

@@ -341,7 +341,8 @@ mod tests {
         assert_eq!(out.len(), 1);
         assert!((out[0].delta.x - (0.8 * 0.02 + 0.2 * 0.04)).abs() < 1e-12);
         assert!((out[0].var.x - (1e-4 + 0.8e-6)).abs() < 1e-15);
-        assert!((f.weights["a"][0] - 0.8).abs() < 1e-12);
+        let weight_a = f.weights.get("a").expect("a weighed")[0];
+        assert!((weight_a - 0.8).abs() < 1e-12);
         // An absolute fix with equal variance pulls halfway.
         let v = f.var.x;
         let x = f.x.expect("initialised").x;

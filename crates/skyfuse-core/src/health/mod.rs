@@ -293,13 +293,13 @@ impl HealthMonitor {
     pub fn new(cfg: HealthConfig, sensors: &[InputSpec]) -> Self {
         let mut map = SourceMap::new();
         for s in sensors {
-            map.insert(
-                s.id.clone(),
+            map.put(
+                &s.id,
                 SensorHealth::new(&s.id, Some(s.kind), s.rate_hz, !s.enabled),
             );
         }
-        map.insert(
-            ESTIMATOR_ID.to_string(),
+        map.put(
+            ESTIMATOR_ID,
             SensorHealth::new(ESTIMATOR_ID, None, 0.0, false),
         );
         Self {
