@@ -640,15 +640,16 @@ impl Estimator {
     pub fn state_summary(&self) -> EstimatorStatus {
         let c = &self.core;
         let invalid_reason = self.invalid_reason();
-        let mut sources: BTreeMap<String, SourceStatus> = c
+        let sources: BTreeMap<String, SourceStatus> = c
             .stats
             .iter()
-            .map(|(s, st)| (s.clone(), st.clone()))
+            .map(|(s, st)| {
+                let mut st = st.clone();
+                st.usable = self.usable.get(s).is_none_or(|u| u.0);
+                st.segment = c.odom.get(s).map(|o| o.segment);
+                (s.clone(), st)
+            })
             .collect();
-        for (s, st) in sources.iter_mut() {
-            st.usable = self.usable.get(s).is_none_or(|u| u.0);
-            st.segment = c.odom.get(s).map(|o| o.segment);
-        }
         let (trace, std, bias) = match (&c.ekf, c.mode_wrls) {
             (Some(e), false) => {
                 let d = e.cov3(IDX_P).diagonal();
