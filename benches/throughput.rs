@@ -368,8 +368,12 @@ fn ulog_replay_bench() {
 const ULOG_REPS: usize = 3;
 
 fn replay_bench() {
-    let dir =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/px4-flow-vio-7c824ee5");
+    let Some(dir) =
+        skyfuse_core::shared_data::shared_data("px4-flow-vio-7c824ee5", "throughput replay_bench")
+    else {
+        println!("(PX4 replay skipped: ../shared/data/px4-flow-vio-7c824ee5 is absent)");
+        return;
+    };
     let t = Instant::now();
     let log = match skyfuse::replay::px4log::read_dir(&dir) {
         Ok(l) => l,

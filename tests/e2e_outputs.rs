@@ -376,9 +376,9 @@ fn mavlink_server_killed_and_restarted_is_seen_and_nothing_else_notices() {
     // comes back on its own; the other sensors, the estimate and the VPE carry on.
     let msrv = common::peers_dir().join("bin/mavlink-server");
     if !msrv.exists() {
-        eprintln!(
-            "SKIPPED mavlink_server_killed_and_restarted: no {} ($SKYFUSE_PEERS)",
-            msrv.display()
+        common::skipped(
+            "mavlink_server_killed_and_restarted",
+            &format!("no {} ($SKYFUSE_PEERS)", msrv.display()),
         );
         return;
     }

@@ -283,9 +283,12 @@ fn a_rosbag2_bag_written_by_rosbags_replays_like_the_recording() {
 fn foxglove_client(url: &str, seconds: u32, stall: bool) -> Option<std::process::Child> {
     let dir = common::repo_root().join("tests/node");
     if !dir.join("node_modules/@foxglove/ws-protocol").is_dir() {
-        eprintln!(
-            "SKIPPED: no {}/node_modules (`npm ci` there, as tests/run does)",
-            dir.display()
+        common::skipped(
+            "the Foxglove client check",
+            &format!(
+                "no {}/node_modules (`npm ci` there, as tests/run does)",
+                dir.display()
+            ),
         );
         return None;
     }

@@ -1,34 +1,57 @@
-//! End to end, ROS 2 for real: the real zenoh-bridge-ros2dds (1.9.0, humble) between
-//! skyfuse and a ROS 2 node emulated on DDS (Python cyclonedds, the peers'
-//! `ros2/ros2_dds.py`). The node publishes NavSatFix, T265 Odometry, Imu and FlowTof of
-//! a vehicle flying a circle; skyfuse takes every input's type from the bridge's
-//! announcement (`type = "auto"`), fuses, and its pose and debug series come back
-//! through the bridge to ROS readers on DDS, one subscribed before skyfuse starts and
-//! one after (once the topics are in DDS discovery with their types). The work is in
-//! `tests/py/ros2_bridge_check.py`, which prints the figures as JSON.
+//! End to end, ROS 2 for real: Zenoh's ROS 2 bridge (`zenoh-plugin-ros2dds` 1.10.2 from
+//! crates.io, started statically by `tests/ros2dds-bridge`, as upstream's
+//! zenoh-bridge-ros2dds does; humble) between skyfuse and a ROS 2 node emulated on DDS
+//! (Python cyclonedds, the peers' `ros2/ros2_dds.py`). The node publishes NavSatFix, T265
+//! Odometry, Imu and FlowTof of a vehicle flying a circle; skyfuse takes every input's
+//! type from the bridge's announcement (`type = "auto"`), fuses, and its pose and debug
+//! series come back through the bridge to ROS readers on DDS, one subscribed before
+//! skyfuse starts and one after (once the topics are in DDS discovery with their types).
+//! The work is in `tests/py/ros2_bridge_check.py`, which prints the figures as JSON.
 //!
-//! Skips (and passes) when the peers dir ($SKYFUSE_PEERS, default ../shared/peers), the
-//! bridge binary or the Python `cyclonedds` module is absent: a clone of the project
-//! alone must pass.
+//! The bridge: $SKYFUSE_ROS2DDS_BRIDGE (`tests/run` builds tests/ros2dds-bridge once per
+//! machine and sets it), else an upstream binary at $SKYFUSE_PEERS/bin/zenoh-bridge-ros2dds.
+//! Skips (and passes), saying why, when there is no bridge, when the peers dir
+//! ($SKYFUSE_PEERS, default ../shared/peers) lacks the emulated node or the Python
+//! `cyclonedds` module is absent: a clone of the project alone must pass.
 
 mod common;
 use common::*;
+use std::path::PathBuf;
 use std::process::Command;
+
+/// The bridge binary, or why there is none.
+fn bridge() -> Result<PathBuf, String> {
+    if let Some(b) = std::env::var_os("SKYFUSE_ROS2DDS_BRIDGE") {
+        let b = PathBuf::from(b);
+        return if b.is_file() {
+            Ok(b)
+        } else {
+            Err(format!(
+                "SKYFUSE_ROS2DDS_BRIDGE={} is not a file (tests/run builds it from tests/ros2dds-bridge)",
+                b.display()
+            ))
+        };
+    }
+    let upstream = peers_dir().join("bin/zenoh-bridge-ros2dds");
+    if upstream.is_file() {
+        return Ok(upstream);
+    }
+    Err(format!(
+        "no bridge: SKYFUSE_ROS2DDS_BRIDGE unset (tests/run builds tests/ros2dds-bridge and sets it) and no {}",
+        upstream.display()
+    ))
+}
 
 /// Why the test cannot run here, if it cannot.
 fn missing() -> Option<String> {
     let peers = peers_dir();
     if !peers.is_dir() {
         return Some(format!(
-            "no peers dir {} (set SKYFUSE_PEERS)",
+            "no peers dir {} for the emulated ROS 2 node (set SKYFUSE_PEERS)",
             peers.display()
         ));
     }
-    for f in [
-        "bin/zenoh-bridge-ros2dds",
-        "ros2/ros2_dds.py",
-        "ros2/cyclonedds-localhost.xml",
-    ] {
+    for f in ["ros2/ros2_dds.py", "ros2/cyclonedds-localhost.xml"] {
         if !peers.join(f).is_file() {
             return Some(format!("no {}", peers.join(f).display()));
         }
@@ -52,8 +75,15 @@ fn ros2_node_through_the_real_bridge_both_ways() {
     if skip_requested("peers", "ros2_node_through_the_real_bridge_both_ways") {
         return;
     }
+    let bridge = match bridge() {
+        Ok(b) => b,
+        Err(why) => {
+            skipped("ros2_node_through_the_real_bridge_both_ways", &why);
+            return;
+        }
+    };
     if let Some(why) = missing() {
-        eprintln!("SKIPPED ros2_node_through_the_real_bridge_both_ways: {why}");
+        skipped("ros2_node_through_the_real_bridge_both_ways", &why);
         return;
     }
     let peers = peers_dir();
@@ -62,6 +92,8 @@ fn ros2_node_through_the_real_bridge_both_ways() {
         &[
             "--skyfuse",
             env!("CARGO_BIN_EXE_skyfuse"),
+            "--bridge",
+            bridge.to_str().expect("bridge path"),
             "--peers",
             peers.to_str().expect("peers path"),
             "--strict",
@@ -84,8 +116,10 @@ fn ros2_node_through_the_real_bridge_both_ways() {
         );
     }
     eprintln!(
-        "ros2 bridge: wall {} s; pose vs odometry {} m RMS (yaw {}°, T265 frame at {}°); pose vs truth {} m RMS; \
+        "ros2 bridge ({} {}): wall {} s; pose vs odometry {} m RMS (yaw {}°, T265 frame at {}°); pose vs truth {} m RMS; \
          latency median {} ms, p95 {} ms; readers {}; DDS writers {} s after skyfuse started, gone {} s after it stopped",
+        v["bridge"],
+        v["bridge_version"],
         v["wall_s"],
         v["pose_vs_odometry"]["horizontal_rms_m"],
         v["pose_vs_odometry"]["fitted_yaw_deg"],

@@ -60,7 +60,7 @@ fn fly_with(scenario: &str, link: &str, instance: u32, config: Option<&str>) -> 
         return None;
     }
     if let Some(why) = missing() {
-        eprintln!("SKIPPED SITL {scenario}/{link}: {why}");
+        skipped(&format!("SITL {scenario}/{link}"), &why);
         return None;
     }
     let out = std::env::temp_dir().join(format!(

@@ -106,7 +106,7 @@ pub(super) fn sim_ulog(
     file: &std::path::Path,
 ) -> Result<(), String> {
     let scn = scenario_at(scenario_name, imu_hz)?;
-    let duration = duration.unwrap_or(scenario::DEFAULT_DURATION_S);
+    let duration = duration.unwrap_or_else(|| scn.default_duration_s());
     let sim = scn.simulator(seed, duration);
     let out = std::fs::File::create(file)
         .map_err(|e| format!("cannot create {}: {e}", file.display()))?;
@@ -143,11 +143,11 @@ pub(super) fn offline_sims(
         None => vec![c.estimator.mode],
     };
     let many = names.len() > 1 || modes.len() > 1;
-    let duration = duration.unwrap_or(scenario::DEFAULT_DURATION_S);
     // scenario -> (source scores from the first mode, fused score per mode)
     let mut table: Vec<ScenarioRow> = Vec::new();
     for name in &names {
         let scn = scenario_at(name, imu_hz)?;
+        let duration = duration.unwrap_or_else(|| scn.default_duration_s());
         let mut sources = Vec::new();
         let mut fused = Vec::new();
         for m in &modes {
@@ -187,6 +187,7 @@ pub(super) fn offline_sims(
                 out = %dir.display(),
                 "offline run done"
             );
+            print_consistency(&summary);
             fused.push(f);
         }
         table.push((name.to_string(), sources, fused));
@@ -392,7 +393,33 @@ pub(super) fn replay(
             s.poses
         );
     }
+    print_consistency(&summary);
     Ok(())
+}
+
+/// One line: did the valid poses hold the reference inside the σ they were sent with.
+fn print_consistency(summary: &offline::Summary) {
+    match &summary.consistency {
+        Some(c) => println!(
+            "consistency against {} ({} valid poses, alignment {}): within 3σ E {:.1} % N {:.1} % U {:.1} %, beyond 5σ {}, worst {:.1}σ ({} at {:.1} s), mean NEES {:.2}{}",
+            summary.reference,
+            c.poses,
+            c.alignment,
+            100.0 * c.within_3_sigma[0],
+            100.0 * c.within_3_sigma[1],
+            100.0 * c.within_3_sigma[2],
+            c.beyond_5_sigma,
+            c.worst_ratio,
+            ["E", "N", "U"][c.worst_axis.min(2)],
+            c.worst_t,
+            c.nees_mean,
+            if c.kept() { "" } else { "  NOT CONSISTENT" }
+        ),
+        None => println!(
+            "consistency against {}: not measured (no valid pose matched the reference)",
+            summary.reference
+        ),
+    }
 }
 
 /// What a PX4 log's topics gave, what stood in for absent ones, what is missing.

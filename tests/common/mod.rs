@@ -28,9 +28,18 @@ pub fn skip_requested(what: &str, test: &str) -> bool {
         .split(',')
         .any(|w| w.trim() == what || w.trim() == "all");
     if skip {
-        eprintln!("SKIPPED {test}: SKYFUSE_SKIP={asked} asks to skip the {what} tests");
+        skipped(
+            test,
+            &format!("SKYFUSE_SKIP={asked} asks to skip the {what} tests"),
+        );
     }
     skip
+}
+
+/// Say that `test` is skipped and why: on stderr, and in `$SKYFUSE_SKIP_LOG`, which
+/// `tests/run` lists at the end of the run.
+pub fn skipped(test: &str, why: &str) {
+    skyfuse_core::shared_data::skipped(test, why);
 }
 
 /// The real third-party programs (ArduCopter SITL, mavlink-server,

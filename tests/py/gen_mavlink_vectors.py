@@ -3,8 +3,9 @@
 
 For each message: the field values sent, the MAVLink 2 frame pymavlink packs (and a
 MAVLink 1 frame where the message fits one: id < 256, extensions left out), the
-mavlink-server JSON text the reference Codec makes of it (../mavlink_server_json.py, a
-copy of ../shared/tools/mavlink_server_json.py), current and --legacy-json form, and the
+mavlink-server JSON text the reference Codec makes of it (../shared/tools/
+mavlink_server_json.py beside the project, or $SKYFUSE_SHARED/tools; never copied
+here), current and --legacy-json form, and the
 sample skyfuse must decode it to (SI, ENU world / FLU body), computed here with plain
 rotation matrices, independently of the Rust code. The Rust tests in
 src/codec/mavlink/tests.rs check decode_raw == decode_json == expected, and
@@ -19,7 +20,8 @@ import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TESTS = os.path.dirname(HERE)
-sys.path.insert(0, TESTS)  # mavlink_server_json.py
+SHARED = os.environ.get("SKYFUSE_SHARED") or os.path.join(TESTS, "..", "..", "shared")
+sys.path.insert(0, os.path.join(SHARED, "tools"))  # mavlink_server_json.py
 os.environ["MAVLINK20"] = "1"
 
 import numpy as np  # noqa: E402
@@ -337,7 +339,7 @@ def main():
         "generator": "tests/py/gen_mavlink_vectors.py",
         "pymavlink": pymavlink.__version__,
         "dialect": "common (pymavlink dialects/v20/common.xml)",
-        "note": "json/json_legacy: mavlink-server 0.9 text made by tests/mavlink_server_json.py Codec; "
+        "note": "json/json_legacy: mavlink-server 0.9 text made by shared/tools/mavlink_server_json.py Codec; "
                 "expected: SI, ENU/FLU; rotation row-major 3x3 body FLU -> world ENU; "
                 "covariances row-major 6x6",
         "vectors": out,

@@ -3,9 +3,10 @@
 
 - ROS 2 CDR and ROS 1 bytes from `rosbags` (serialize_cdr / serialize_ros1), on the
   keys zenoh-bridge-ros2dds and zenoh-plugin-ros1 use;
-- mavlink-server JSON made by ../shared/tools/mavlink_server_json.py's Codec (a copy
-  lives beside this directory) from pymavlink messages, on mavlink/<sys>/<comp>/<MSG>
-  plus the per-field keys mavlink-server also publishes;
+- mavlink-server JSON made by ../shared/tools/mavlink_server_json.py's Codec (read
+  from there, $SKYFUSE_SHARED/tools, never copied; its inputs are left out, saying so,
+  when it is absent) from pymavlink messages, on mavlink/<sys>/<comp>/<MSG> plus the
+  per-field keys mavlink-server also publishes;
 - raw MAVLink 2 frames from pymavlink;
 - skyfuse's own JSON.
 
@@ -22,8 +23,24 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
-sys.path.insert(0, os.path.dirname(HERE))  # tests/: mavlink_server_json.py
+SHARED = os.environ.get("SKYFUSE_SHARED") or os.path.join(ROOT, "..", "shared")
+SHARED_CODEC = os.path.join(SHARED, "tools", "mavlink_server_json.py")
+sys.path.insert(0, os.path.dirname(SHARED_CODEC))
 os.environ.setdefault("MAVLINK20", "1")
+
+
+def reference_codec():
+    """The shared reference mavlink-server Codec, or None (and the skip said) when absent."""
+    if not os.path.isfile(SHARED_CODEC):
+        why = f"publish_inputs.py: mavlink-server JSON inputs left out: {SHARED_CODEC} is absent"
+        print("SKIPPED " + why, file=sys.stderr)
+        log = os.environ.get("SKYFUSE_SKIP_LOG")
+        if log:
+            with open(log, "a") as f:
+                f.write(why + "\n")
+        return None
+    import mavlink_server_json as msj
+    return msj
 
 import numpy as np  # noqa: E402
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
@@ -121,8 +138,9 @@ def config():
     for short, (name, kind) in ROS_TYPES.items():
         inp(f"r2_{short}", kind, f"e2e/{short}", "ros2", 10.0, name)
         inp(f"r1_{short}", kind, f"e2e1/{short}", "ros1", 10.0, ros1_name(name))
-    for id_, (msg, kind) in MAV_INPUTS.items():
-        inp(id_, kind, f"mavlink/*/*/{msg}", "mavlink-json", 10.0)
+    if os.path.isfile(SHARED_CODEC):
+        for id_, (msg, kind) in MAV_INPUTS.items():
+            inp(id_, kind, f"mavlink/*/*/{msg}", "mavlink-json", 10.0)
     inp("raw_imu", "imu", "e2e_raw/out", "mavlink-raw", 10.0)
     inp("js_range", "range", "e2e/json/range", "json", 10.0)
     return "\n".join(out)
@@ -153,9 +171,41 @@ def mav_messages(mav, i):
     }
 
 
+def publish_mavlink_json(msj, put, expected):
+    """MAVLink as mavlink-server publishes it, with the reference Codec."""
+    xml = msj.default_xml()
+    dialect = msj.load_dialect(xml)
+    codec = msj.Codec(xml, dialect)
+    mav = dialect.MAVLink(None, srcSystem=1, srcComponent=1)
+    for i in range(GOOD):
+        for name, msg in mav_messages(mav, i + 1).items():
+            msg.pack(mav)
+            name_, text, fields = codec.encode(msg)
+            topic = f"mavlink/1/1/{name_}"
+            put("mavlink/out", text)
+            put(topic, text)
+            for field, ftext in codec.field_texts(fields).items():
+                put(topic + "/" + field, ftext)
+    for id_ in MAV_INPUTS:
+        expected[id_] = {"good": GOOD, "bad": 0, "ignored": 0}
+    # Malformed JSON, a required field missing, and our own VPE coming back (ignored).
+    put("mavlink/1/1/HIGHRES_IMU", '{"header":{"system_id":1,')
+    put("mavlink/1/1/HIGHRES_IMU", '{"header":{"system_id":1,"component_id":1,"sequence":1,"message_id":105},'
+                                   '"message":{"type":"HIGHRES_IMU","time_usec":1}}')
+    put("mavlink/1/1/HIGHRES_IMU", b"\xff\xfe\x00 not utf-8")
+    expected["mj_highres"]["bad"] = 3
+    own = dialect.MAVLink(None, srcSystem=1, srcComponent=197)
+    own_msg = own.attitude_encode(99999, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    own_msg.pack(own)
+    put("mavlink/1/197/ATTITUDE", codec.encode(own_msg)[1])
+    expected["mj_att"]["ignored"] = 1
+
+
 def publish(connect):
-    import mavlink_server_json as msj
+    from pymavlink.dialects.v20 import common as dialect
     from zenoh_peer import open_peer
+
+    msj = reference_codec()
 
     session = open_peer(connect)
     time.sleep(1.0)  # let the subscriptions propagate
@@ -193,33 +243,9 @@ def publish(connect):
     put(f"{'sensor_msgs/Range'.encode().hex()}/{imu_md5}/e2e1/imu", b"\x00" * 32)
     expected["r1_imu"]["bad"] = 1
 
-    # MAVLink as mavlink-server publishes it.
-    xml = msj.default_xml()
-    dialect = msj.load_dialect(xml)
-    codec = msj.Codec(xml, dialect)
-    mav = dialect.MAVLink(None, srcSystem=1, srcComponent=1)
-    for i in range(GOOD):
-        for name, msg in mav_messages(mav, i + 1).items():
-            msg.pack(mav)
-            name_, text, fields = codec.encode(msg)
-            topic = f"mavlink/1/1/{name_}"
-            put("mavlink/out", text)
-            put(topic, text)
-            for field, ftext in codec.field_texts(fields).items():
-                put(topic + "/" + field, ftext)
-    for id_ in MAV_INPUTS:
-        expected[id_] = {"good": GOOD, "bad": 0, "ignored": 0}
-    # Malformed JSON, a required field missing, and our own VPE coming back (ignored).
-    put("mavlink/1/1/HIGHRES_IMU", '{"header":{"system_id":1,')
-    put("mavlink/1/1/HIGHRES_IMU", '{"header":{"system_id":1,"component_id":1,"sequence":1,"message_id":105},'
-                                   '"message":{"type":"HIGHRES_IMU","time_usec":1}}')
-    put("mavlink/1/1/HIGHRES_IMU", b"\xff\xfe\x00 not utf-8")
-    expected["mj_highres"]["bad"] = 3
+    if msj is not None:
+        publish_mavlink_json(msj, put, expected)
     own = dialect.MAVLink(None, srcSystem=1, srcComponent=197)
-    own_msg = own.attitude_encode(99999, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    own_msg.pack(own)
-    put("mavlink/1/197/ATTITUDE", codec.encode(own_msg)[1])
-    expected["mj_att"]["ignored"] = 1
 
     # Raw MAVLink 2 frames: good IMU frames, a heartbeat (another kind: ignored), our
     # own component (ignored), and a frame with a broken CRC (rejected).

@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""ROS 2, for real: skyfuse behind the real zenoh-bridge-ros2dds, with an emulated ROS 2
-(humble) node on DDS on the other side.
+"""ROS 2, for real: skyfuse behind the real Zenoh ROS 2 bridge (zenoh-plugin-ros2dds from
+crates.io in tests/ros2dds-bridge, or an upstream zenoh-bridge-ros2dds binary), with an
+emulated ROS 2 (humble) node on DDS on the other side.
 
     emulated node (DDS) --rt/gps/fix, rt/camera/odom/sample, rt/mavros/imu/data,
         rt/data_fusion/OF_data--> zenoh-bridge-ros2dds --Zenoh--> skyfuse
@@ -10,8 +11,8 @@ What it does, every wait bounded, every process killed at the end (also on failu
   1. a private DDS world: a random free ROS_DOMAIN_ID and a copy of the peers'
      cyclonedds-localhost.xml with a unique discovery Tag (two runs cannot see each
      other), loopback only;
-  2. zenoh-bridge-ros2dds (ROS_DISTRO=humble) listening on tcp/127.0.0.1:0 (the port it
-     got is read from its log), no multicast scouting;
+  2. the bridge (ROS_DISTRO=humble) listening on tcp/127.0.0.1:0 (the port it got is
+     read from its log), no multicast scouting;
   3. an "early" ROS reader node that subscribes to data_fusion/pose_msg and two debug
      series BEFORE skyfuse starts;
   4. `skyfuse run -c tests/data/ros2/skyfuse-ros2.toml --connect <bridge>` (inputs with
@@ -37,10 +38,12 @@ first flow sample: the flow's ToF must still be taken (the ground below a frame 
 without a height is unknown), flow health ok ≥ 90 % of the flight.
 
     $HOME/.cache/skyfuse-venv/bin/python tests/py/ros2_bridge_check.py --skyfuse BIN \
-        [--peers DIR] [--duration 15] [--strict] [--keep]
+        [--bridge BIN] [--peers DIR] [--duration 15] [--strict] [--keep]
 
-Needs Python `cyclonedds` (11.0.1) and the peers dir ($SKYFUSE_PEERS, default
-../shared/peers from the project root).
+Needs Python `cyclonedds` (11.0.1), the peers dir ($SKYFUSE_PEERS, default
+../shared/peers from the project root) for the emulated node, and the bridge: --bridge,
+else $SKYFUSE_ROS2DDS_BRIDGE (tests/run builds tests/ros2dds-bridge and sets it), else
+the peers' bin/zenoh-bridge-ros2dds.
 """
 
 import argparse
@@ -527,7 +530,8 @@ def r4(x):
 def main_check(a):
     t_start = time.monotonic()
     peers = os.path.abspath(a.peers)
-    bridge_bin = os.path.join(peers, "bin", "zenoh-bridge-ros2dds")
+    bridge_bin = os.path.abspath(a.bridge or os.environ.get("SKYFUSE_ROS2DDS_BRIDGE")
+                                 or os.path.join(peers, "bin", "zenoh-bridge-ros2dds"))
     xml_src = os.path.join(peers, "ros2", "cyclonedds-localhost.xml")
     for pth in (bridge_bin, xml_src, os.path.join(peers, "ros2", "ros2_dds.py"), a.skyfuse, a.config):
         if not os.path.exists(pth):
@@ -557,7 +561,7 @@ def main_check(a):
     try:
         # -- the bridge
         bridge_log = os.path.join(tmp, "bridge.log")
-        bridge = procs.start("zenoh-bridge-ros2dds",
+        bridge = procs.start(f"bridge {os.path.basename(bridge_bin)}",
                              [bridge_bin, "-l", "tcp/127.0.0.1:0", "--no-multicast-scouting", "-d", str(domain)],
                              dict(env, RUST_LOG=os.environ.get("BRIDGE_RUST_LOG", "info")), bridge_log)
 
@@ -568,6 +572,9 @@ def main_check(a):
             return int(m.group(1)) if m else None
         bport = wait_for("the bridge's listening port in its log", 15, bridge_port)
         out["bridge_endpoint"] = f"tcp/127.0.0.1:{bport}"
+        out["bridge"] = bridge_bin
+        m = re.search(r"zenoh-(?:plugin|bridge)-ros2dds (v?\d[^\s]*)", open(bridge_log, errors="replace").read())
+        out["bridge_version"] = m.group(1) if m else None
 
         # -- DDS discovery watcher and the early reader (before skyfuse exists)
         disc = Discovery(domain)
@@ -912,6 +919,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--role", choices=["check", "publisher"], default="check")
     ap.add_argument("--skyfuse", help="the skyfuse binary")
+    ap.add_argument("--bridge", help="the bridge binary (default: $SKYFUSE_ROS2DDS_BRIDGE, else the peers' "
+                                     "bin/zenoh-bridge-ros2dds)")
     ap.add_argument("--peers", default=os.environ.get("SKYFUSE_PEERS") or os.path.join(ROOT, "..", "shared", "peers"))
     ap.add_argument("--config", default=os.path.join(ROOT, "tests", "data", "ros2", "skyfuse-ros2.toml"))
     ap.add_argument("--duration", type=float, default=15.0, help="seconds of sensor data")

@@ -16,8 +16,10 @@
 //! - [`fusion`]: the estimator under health supervision, shared by service and offline.
 //! - [`sim`]: the simulated vehicle (truth, sensor models, faults, scenarios).
 //! - [`replay`]: recorded flights as samples (PX4 ULog and CSV, MAVLink tlogs).
+//! - [`dead_reckoning`]: plain flow dead reckoning, the baseline flow fusion must beat.
 //! - [`eval`]: TUM trajectories and the APE metric as evo computes it.
 //! - [`offline`]: scenario and replay runs through the fusion core, files and scores.
+//! - [`shared_data`]: where tests find third-party data (../shared/data), and skip.
 //! - [`source_map`]: per-source state looked up by name on every sample.
 //! - [`sync`]: a lock that outlives a panicking holder.
 //!
@@ -25,6 +27,7 @@
 //! `docs/SEEDS.md` says what each one gave the code.
 
 pub mod codec;
+pub mod dead_reckoning;
 pub mod estimator;
 pub mod eval;
 pub mod event;
@@ -34,6 +37,7 @@ pub mod health;
 pub mod offline;
 pub mod replay;
 pub mod sample;
+pub mod shared_data;
 pub mod sim;
 pub mod source_map;
 pub mod sync;

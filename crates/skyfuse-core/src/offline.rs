@@ -15,7 +15,7 @@ use crate::sample::{GnssFixType, Sample, SensorData, SensorKind};
 use crate::sim::scenario::Scenario;
 use crate::sim::truth::truth_of;
 use crate::source_map::SourceMap;
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use serde::Serialize;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -48,16 +48,22 @@ pub enum OfflineError {
 pub struct Recorder {
     /// The poses the service would have sent: valid ones only.
     pub fused: Trajectory,
+    /// The position covariance each of them was sent with (ENU, m²).
+    pub fused_cov: Vec<Matrix3<f64>>,
     /// Every pose, valid or not (`fused_all.tum`).
     pub fused_all: Trajectory,
     /// Validity of each recorded pose: (t, valid).
     pub validity: Vec<(f64, bool)>,
+    /// The position 1σ (E, N, U) each recorded pose was sent with, m.
+    pub fused_all_std: Vec<Vector3<f64>>,
     /// Airborne or not from the autopilot's land detector (or the simulator's truth):
     /// (t, airborne) at each change.
     pub airborne: Vec<(f64, bool)>,
     /// Per position source, raw (GNSS in local ENU from its first fix, odometry in its
     /// own frame, the autopilot's estimate) or as integrated by the estimator (flow).
     pub sources: SourceMap<Trajectory>,
+    /// Plain flow dead reckoning of each flow source (`<source>_dr`), the baseline.
+    pub dead_reckoning: crate::dead_reckoning::FlowDeadReckoning,
     pub events: Vec<String>,
     last_fused_us: Option<i64>,
     gnss_origin: Option<LocalEnu>,
@@ -99,6 +105,7 @@ impl Recorder {
     pub fn source_sample(&mut self, s: &Sample) {
         let Some(stamp) = s.stamp_us else { return };
         let t = self.secs(stamp);
+        self.dead_reckoning.sample(s, t);
         let id: &str = &s.source;
         match &s.data {
             SensorData::Gnss(g) if g.fix != GnssFixType::NoFix && g.lat_deg.is_finite() => {
@@ -181,8 +188,14 @@ impl Recorder {
         let t = self.secs(pose.time_us);
         push(&mut self.fused_all, t, pose.position, pose.orientation);
         self.validity.push((t, pose.valid));
+        self.fused_all_std
+            .push(pose.position_cov.diagonal().map(|v| v.max(0.0).sqrt()));
         if pose.valid {
+            let before = self.fused.t.len();
             push(&mut self.fused, t, pose.position, pose.orientation);
+            if self.fused.t.len() > before {
+                self.fused_cov.push(pose.position_cov);
+            }
         }
     }
 
@@ -271,6 +284,104 @@ fn availability(validity: &[(f64, bool)], airborne: &[(f64, bool)]) -> Availabil
     }
 }
 
+/// Whether "valid" kept its promise: the reference inside the uncertainty sent with
+/// each valid pose. Errors per axis of the reference's frame (E, N, U) over the σ sent
+/// (rotated into that frame where the estimate had to be aligned).
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Consistency {
+    /// Valid poses compared with the reference.
+    pub poses: usize,
+    /// How the estimate was put into the reference's frame: `none` (the simulator's
+    /// truth shares the estimator's frame) or `origin` (the first matched poses made
+    /// one, as `evo_ape --align_origin`: a frame registration, not a fit to the errors,
+    /// so an offset carried from the start counts).
+    pub alignment: &'static str,
+    /// Per axis: the fraction of poses within 3σ.
+    pub within_3_sigma: [f64; 3],
+    /// Poses with any axis beyond 5σ.
+    pub beyond_5_sigma: usize,
+    /// The largest |error| / σ on any axis, where (s into the run) and on which axis.
+    pub worst_ratio: f64,
+    pub worst_t: f64,
+    pub worst_axis: usize,
+    /// Mean position NEES, eᵀ Σ⁻¹ e (3 expected for a consistent filter).
+    pub nees_mean: f64,
+}
+
+impl Consistency {
+    /// The promise as the tests hold it: at least 99 % of valid poses within 3σ on
+    /// every axis, and none beyond 5σ.
+    pub fn kept(&self) -> bool {
+        self.within_3_sigma.iter().all(|f| *f >= 0.99) && self.beyond_5_sigma == 0
+    }
+}
+
+/// Consistency of `estimate` (with `cov` per pose) against `reference` (matched by
+/// time within `max_diff_s`); `align`: register the frames at the first matched pose
+/// first (a reference in its own frame).
+fn consistency(
+    reference: &Trajectory,
+    estimate: &Trajectory,
+    cov: &[Matrix3<f64>],
+    max_diff_s: f64,
+    align: bool,
+) -> Option<Consistency> {
+    let (ie, ir) = crate::eval::matching_time_indices(&estimate.t, &reference.t, max_diff_s, 0.0);
+    if ie.len() < 2 {
+        return None;
+    }
+    let (e, r) = (estimate.select(&ie), reference.select(&ir));
+    let rot = if align {
+        let pose = |p: Vector3<f64>, q: UnitQuaternion<f64>| {
+            nalgebra::Isometry3::from_parts(nalgebra::Translation3::from(p), q)
+        };
+        let to_ref = pose(r.p[0], r.q[0]) * pose(e.p[0], e.q[0]).inverse();
+        crate::eval::Sim3 {
+            rotation: *to_ref.rotation.to_rotation_matrix().matrix(),
+            translation: to_ref.translation.vector,
+            scale: 1.0,
+        }
+    } else {
+        crate::eval::Sim3 {
+            rotation: Matrix3::identity(),
+            translation: Vector3::zeros(),
+            scale: 1.0,
+        }
+    };
+    let mut within = [0usize; 3];
+    let (mut beyond, mut worst, mut worst_t, mut worst_axis, mut nees) = (0, 0.0f64, 0.0, 0, 0.0);
+    for (k, &i) in ie.iter().enumerate() {
+        let err = rot.apply(&e.p[k]) - r.p[k];
+        let c = rot.rotation * cov[i] * rot.rotation.transpose();
+        let mut out = false;
+        for a in 0..3 {
+            let ratio = err[a].abs() / c[(a, a)].max(1e-12).sqrt();
+            if ratio <= 3.0 {
+                within[a] += 1;
+            }
+            out |= ratio > 5.0;
+            if ratio > worst {
+                (worst, worst_t, worst_axis) = (ratio, e.t[k], a);
+            }
+        }
+        beyond += usize::from(out);
+        nees += c
+            .try_inverse()
+            .map_or(f64::INFINITY, |ci| (err.transpose() * ci * err)[(0, 0)]);
+    }
+    let n = ie.len() as f64;
+    Some(Consistency {
+        poses: ie.len(),
+        alignment: if align { "origin" } else { "none" },
+        within_3_sigma: within.map(|w| w as f64 / n),
+        beyond_5_sigma: beyond,
+        worst_ratio: worst,
+        worst_t,
+        worst_axis,
+        nees_mean: nees / n,
+    })
+}
+
 /// What one run wrote and measured.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
@@ -286,6 +397,8 @@ pub struct Summary {
     pub availability: Availability,
     /// APE of each trajectory against the reference, SE(3)- and origin-aligned.
     pub scores: Vec<Score>,
+    /// The valid poses' errors against the σ they were sent with.
+    pub consistency: Option<Consistency>,
     pub files: Vec<String>,
 }
 
@@ -334,6 +447,22 @@ fn tum(name: &str, tr: &Trajectory) -> Result<String, OfflineError> {
         name: name.to_string(),
         source,
     })
+}
+
+/// `t sigma_e sigma_n sigma_u valid` per recorded pose: the uncertainty each pose was
+/// sent with beside `fused_all.tum`, to plot against the error.
+fn sigma_text(rec: &Recorder) -> String {
+    let mut out = Vec::with_capacity(rec.validity.len() * 48);
+    out.extend_from_slice(b"# t sigma_e sigma_n sigma_u valid\n");
+    for ((t, valid), s) in rec.validity.iter().zip(&rec.fused_all_std) {
+        crate::eval::push_fixed(&mut out, *t, 6);
+        for v in s.iter() {
+            out.push(b' ');
+            crate::eval::push_fixed(&mut out, *v, 4);
+        }
+        out.extend_from_slice(if *valid { b" 1\n" } else { b" 0\n" });
+    }
+    String::from_utf8(out).unwrap_or_default()
 }
 
 /// APE with SE(3) alignment (`evo_ape -a`); where the trajectory is too degenerate to
@@ -423,7 +552,10 @@ fn finish(
         "fused_all.tum",
         &tum("fused_all", &rec.fused_all)?,
     )?);
-    for (name, tr) in &rec.sources {
+    files.push(write_file(out, "fused_sigma.txt", &sigma_text(rec))?);
+    // The sources as they report themselves, then the flow dead reckoning baselines.
+    let tracks = || rec.sources.iter().chain(rec.dead_reckoning.out.iter());
+    for (name, tr) in tracks() {
         files.push(write_file(out, &format!("{name}.tum"), &tum(name, tr)?)?);
     }
     let mut events = rec.events.join("\n");
@@ -468,12 +600,22 @@ fn finish(
         });
     };
     score("fused", &rec.fused);
-    for (name, tr) in &rec.sources {
+    for (name, tr) in tracks() {
         if matches!(reference, Reference::Source { name: rn, .. } if rn == name) {
             continue;
         }
         score(name, tr);
     }
+    let consistency = match &reference {
+        Reference::Truth(truth) => {
+            let t = truth_at(*truth, &rec.fused.t);
+            consistency(&t, &rec.fused, &rec.fused_cov, 1e-9, false)
+        }
+        Reference::Source { name, max_diff_s } => rec
+            .sources
+            .get(name)
+            .and_then(|r| consistency(r, &rec.fused, &rec.fused_cov, *max_diff_s, true)),
+    };
     files.push("summary.json".into());
     let summary = Summary {
         input: input.name,
@@ -488,6 +630,7 @@ fn finish(
         window_s: window,
         availability: availability(&rec.validity, &rec.airborne),
         scores,
+        consistency,
         files,
     };
     let text = serde_json::to_string_pretty(&summary).unwrap_or_default() + "\n";

@@ -168,6 +168,28 @@ pub const DEFAULT_RANGE_MAX_M: f64 = 12.0;
 pub const DEFAULT_RANGE_MAX_TILT_RAD: f64 = 0.7;
 /// Terrain height random walk (flat ground: small), m/√s.
 pub const DEFAULT_TERRAIN_RW: f64 = 0.005;
+/// How much the ground may rise or fall per metre travelled, m/m (PX4 EKF2_TERR_GRAD,
+/// smaller: most vehicles on range finders fly over floors and fields): the terrain's
+/// uncertainty grows with the speed over it, so a vehicle carried off a table, or
+/// flown far on the range finder alone, does not claim to know its height above the
+/// take-off point to the centimetre.
+pub const DEFAULT_TERRAIN_GRADIENT: f64 = 0.1;
+/// After a reading its sensor flags invalid or one beyond its maximum, a range source
+/// must read good this long before it is fused again, ms (PX4 EKF2_RNG_QLTY_T): a sonar
+/// out of range that hears a stray echo now and then is never a height.
+pub const DEFAULT_RANGE_QUALITY_HOLD_MS: f64 = 1000.0;
+/// A flow sensor's scale error 1σ before anything calibrated it (lens focal length,
+/// height error), as a fraction: 0.05 reads up to about 5 % fast or slow. 0 leaves
+/// the scale out of the filter (trusted exactly).
+pub const DEFAULT_FLOW_SCALE_STD: f64 = 0.05;
+/// Random walk of a flow sensor's scale error, 1/√s (texture and height change it).
+pub const DEFAULT_FLOW_SCALE_RW: f64 = 0.0005;
+/// The heading error 1σ of a flow sensor's velocity as turned into the world, rad: the
+/// attitude's yaw error (a magnetometer indoors is off by degrees) and the sensor's
+/// mounting. 0 trusts the yaw exactly.
+pub const DEFAULT_FLOW_HEADING_STD: f64 = 0.05;
+/// How fast that heading error wanders, rad/√s (a compass near steel, a yaw that drifts).
+pub const DEFAULT_FLOW_HEADING_RW: f64 = 0.003;
 /// Flow calibration: samples per axis, flow-rate threshold, timeout, accepted scale range.
 pub const DEFAULT_FLOW_CAL_SAMPLES: usize = 50;
 pub const DEFAULT_FLOW_CAL_MIN_RATE: f64 = 0.1;
@@ -300,9 +322,15 @@ pub struct EstimatorConfig {
     pub flow_min_quality: u8,
     pub flow_rate_noise: f64,
     pub flow_min_height_m: f64,
+    pub flow_scale_std: f64,
+    pub flow_scale_rw: f64,
+    pub flow_heading_std: f64,
+    pub flow_heading_rw: f64,
     pub range_noise: f64,
     pub range_max_tilt_rad: f64,
+    pub range_quality_hold_ms: f64,
     pub terrain_rw: f64,
+    pub terrain_gradient: f64,
     pub flow_cal_samples: usize,
     pub flow_cal_min_rate: f64,
     pub flow_cal_timeout_s: f64,
@@ -371,9 +399,15 @@ impl Default for EstimatorConfig {
             flow_min_quality: DEFAULT_FLOW_MIN_QUALITY,
             flow_rate_noise: DEFAULT_FLOW_RATE_NOISE,
             flow_min_height_m: DEFAULT_FLOW_MIN_HEIGHT_M,
+            flow_scale_std: DEFAULT_FLOW_SCALE_STD,
+            flow_scale_rw: DEFAULT_FLOW_SCALE_RW,
+            flow_heading_std: DEFAULT_FLOW_HEADING_STD,
+            flow_heading_rw: DEFAULT_FLOW_HEADING_RW,
             range_noise: DEFAULT_RANGE_NOISE,
             range_max_tilt_rad: DEFAULT_RANGE_MAX_TILT_RAD,
+            range_quality_hold_ms: DEFAULT_RANGE_QUALITY_HOLD_MS,
             terrain_rw: DEFAULT_TERRAIN_RW,
+            terrain_gradient: DEFAULT_TERRAIN_GRADIENT,
             flow_cal_samples: DEFAULT_FLOW_CAL_SAMPLES,
             flow_cal_min_rate: DEFAULT_FLOW_CAL_MIN_RATE,
             flow_cal_timeout_s: DEFAULT_FLOW_CAL_TIMEOUT_S,
@@ -439,6 +473,23 @@ impl EstimatorConfig {
                     "estimator.{name} must be a positive number, got {v}"
                 ));
             }
+        }
+        for (name, v) in [
+            ("flow_scale_std", self.flow_scale_std),
+            ("flow_scale_rw", self.flow_scale_rw),
+            ("flow_heading_std", self.flow_heading_std),
+            ("flow_heading_rw", self.flow_heading_rw),
+            ("terrain_gradient", self.terrain_gradient),
+        ] {
+            if !(v.is_finite() && (0.0..1.0).contains(&v)) {
+                return Err(format!("estimator.{name} must be between 0 and 1, got {v}"));
+            }
+        }
+        if !(self.range_quality_hold_ms.is_finite() && self.range_quality_hold_ms >= 0.0) {
+            return Err(format!(
+                "estimator.range_quality_hold_ms must be 0 or more, got {}",
+                self.range_quality_hold_ms
+            ));
         }
         if !(self.predict_period_ms.is_finite() && (0.0..=100.0).contains(&self.predict_period_ms))
         {

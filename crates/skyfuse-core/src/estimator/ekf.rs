@@ -60,8 +60,22 @@ pub struct Ekf {
     pub p: DMatrix<f64>,
     /// (source id, first index) of each odometry offset block.
     pub blocks: Vec<(String, usize)>,
+    /// (source id, index) of each flow source's scale error k and, at the next index,
+    /// its heading error ψ: the flow reads (1 + k)·Rz(ψ) times the truth (ψ: the
+    /// attitude's yaw error and the sensor's mounting, as the flow's velocity is turned
+    /// into the world by that yaw). Unobservable from flow alone, they make the
+    /// position's uncertainty grow with the distance from where the flow started, as
+    /// the error does; another velocity or position source calibrates them.
+    pub scales: Vec<(String, usize)>,
+    /// Random walk of the scale errors, 1/√s, and of the heading errors, rad/√s.
+    pub scale_rw: f64,
+    pub heading_rw: f64,
     /// Terrain height random walk, m/√s.
     pub terrain_rw: f64,
+    /// How much the terrain may rise or fall per metre travelled (EKF2_TERR_GRAD): its
+    /// uncertainty grows with the horizontal speed, and with the speed's own
+    /// uncertainty (a vehicle moved unaided, carried or flown, went somewhere unknown).
+    pub terrain_gradient: f64,
     /// GNSS slow error: stationary 1σ per axis (m) and correlation time (s).
     pub gnss_bias_std: Vector3<f64>,
     pub gnss_bias_tau_s: f64,
@@ -88,7 +102,11 @@ impl Ekf {
             x,
             p,
             blocks: Vec::new(),
+            scales: Vec::new(),
+            scale_rw: 0.0,
+            heading_rw: 0.0,
             terrain_rw: 0.0,
+            terrain_gradient: 0.0,
             gnss_bias_std: Vector3::zeros(),
             gnss_bias_tau_s: 1.0,
         }
@@ -185,9 +203,20 @@ impl Ekf {
             next[(IDX_V + i, IDX_V + i)] += q * dt * dt;
             next[(IDX_BA + i, IDX_BA + i)] += bias_rw * bias_rw * dt;
         }
-        next[(IDX_TERRAIN, IDX_TERRAIN)] += self.terrain_rw * self.terrain_rw * dt;
+        // Speed over the ground and its 1σ, before this step (the terrain's noise is not
+        // worth an exact bookkeeping of the step).
+        let speed = self.x[IDX_V].hypot(self.x[IDX_V + 1])
+            + (next[(IDX_V, IDX_V)] + next[(IDX_V + 1, IDX_V + 1)])
+                .max(0.0)
+                .sqrt();
+        let terrain_q = self.terrain_rw.powi(2) + (self.terrain_gradient * speed).powi(2);
+        next[(IDX_TERRAIN, IDX_TERRAIN)] += terrain_q * dt;
         for i in 0..3 {
             next[(IDX_BG + i, IDX_BG + i)] += self.gnss_bias_std[i].powi(2) * (1.0 - phi * phi);
+        }
+        for &(_, idx) in &self.scales {
+            next[(idx, idx)] += self.scale_rw * self.scale_rw * dt;
+            next[(idx + 1, idx + 1)] += self.heading_rw * self.heading_rw * dt;
         }
         for (source, idx) in &self.blocks {
             let (rw, idx) = (drift_rw(source), *idx);
@@ -402,6 +431,25 @@ impl Ekf {
         self.p.view_mut((idx, idx), (3, 3)).copy_from(&ppp);
         self.symmetrise();
         idx
+    }
+
+    /// The index of `source`'s scale error (its heading error at the next), added
+    /// (both 0, variances `scale_var` and `heading_var`, uncorrelated) on first use.
+    pub fn scale_state(&mut self, source: &str, scale_var: f64, heading_var: f64) -> usize {
+        if let Some(&(_, i)) = self.scales.iter().find(|(s, _)| s == source) {
+            return i;
+        }
+        let n = self.n();
+        let mut x = DVector::zeros(n + 2);
+        x.rows_mut(0, n).copy_from(&self.x);
+        let mut p = DMatrix::zeros(n + 2, n + 2);
+        p.view_mut((0, 0), (n, n)).copy_from(&self.p);
+        p[(n, n)] = scale_var;
+        p[(n + 1, n + 1)] = heading_var;
+        self.x = x;
+        self.p = p;
+        self.scales.push((source.to_string(), n));
+        n
     }
 
     /// The world frame moved by an uncertain amount (covariance `s`), e.g. when GNSS

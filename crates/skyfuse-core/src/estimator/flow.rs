@@ -150,21 +150,40 @@ impl FlowCalibrator {
     }
 }
 
-/// Height along the body's down axis for the flow: own ToF, else a range finder, else
-/// the fused height over the tilt cosine.
-fn flow_height(core: &Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow) -> Option<f64> {
-    let sc = ctx.cfg.source(source);
+/// A filter started in flight does not know the vertical speed: 1σ, m/s (multirotors
+/// climb and sink at up to 2.5-3 m/s).
+const IN_FLIGHT_VZ_STD: f64 = 2.0;
+/// How fast the vehicle may have moved vertically since a range reading was taken,
+/// m/s: a reading's age times this is part of its error as the flow's height.
+const HEIGHT_AGE_SPEED: f64 = 1.0;
+/// The fused height scales the flow only while its 1σ is below this, m.
+const FUSED_HEIGHT_MAX_STD: f64 = 0.5;
+
+/// Height along the body's down axis for the flow and its variance: own ToF, else a
+/// range finder (its age adding to its error), else the fused height above the terrain
+/// over the tilt cosine (with the filter's own uncertainty of it).
+fn flow_height(
+    core: &Core,
+    ctx: &Ctx,
+    t: i64,
+    source: &str,
+    f: &OpticalFlow,
+) -> Option<(f64, f64)> {
+    let cfg = ctx.cfg;
+    let sc = cfg.source(source);
     let (lo, hi) = (
         sc.min_m.unwrap_or(super::config::DEFAULT_TOF_MIN_M),
         sc.max_m.unwrap_or(super::config::DEFAULT_TOF_MAX_M),
     );
+    let noise = cfg.range_noise * cfg.range_noise;
     if let Some(tof) = &f.tof {
         if tof.distance_m.is_finite() && tof.distance_m > lo && tof.distance_m < hi {
-            return Some(tof.distance_m);
+            return Some((tof.distance_m, noise));
         }
     }
-    if let Some(d) = core.latest_range(t) {
-        return Some(d);
+    if let Some((tr, d)) = core.latest_range_at(t) {
+        let age = (t - tr).abs() as f64 * 1e-6;
+        return Some((d, noise + (age * HEIGHT_AGE_SPEED).powi(2)));
     }
     // A range finder at its minimum says the vehicle is on its gear: the fused height
     // (the middle of [0, min]) is no scale for the flow.
@@ -173,7 +192,10 @@ fn flow_height(core: &Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow) ->
     }
     let ekf = core.ekf.as_ref()?;
     let ct = cos_tilt(&core.att.q);
-    (ekf.p[(2, 2)] < 0.25 && ct > 0.3).then(|| ekf.pos().z / ct)
+    let (z, tz) = (2, super::ekf::IDX_TERRAIN);
+    let var = (ekf.p[(z, z)] + ekf.p[(tz, tz)] - 2.0 * ekf.p[(z, tz)]).max(0.0);
+    (var < FUSED_HEIGHT_MAX_STD.powi(2) && ct > 0.3)
+        .then(|| (ekf.height_above_terrain() / ct, var / (ct * ct)))
 }
 
 pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow) {
@@ -195,7 +217,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
             .last_t = Some(t);
         return;
     }
-    let Some(height) = flow_height(core, ctx, t, source, f) else {
+    let Some((height, height_var)) = flow_height(core, ctx, t, source, f) else {
         core.reject(t, source, "no height for the flow", ctx);
         return;
     };
@@ -231,7 +253,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
             sc.gyro_clamp,
             height,
             rate_noise,
-            cfg.range_noise,
+            height_var.sqrt(),
         );
         core.debug_point(
             t,
@@ -293,9 +315,30 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     calibration_sample(core, ctx, t, source, &fv);
     if !core.initialised() {
         if core.att.known() {
-            let h = height * cos_tilt(&core.att.q);
-            let var = Vector3::repeat(cfg.init_pos_var);
-            core.initialise(t, source, Vector3::new(0.0, 0.0, h), var, None, None, ctx);
+            // Started by the flow, so in the air: its height (with the reading's error)
+            // and its horizontal velocity; how fast the vehicle climbs nobody knows.
+            let ct = cos_tilt(&core.att.q);
+            let h = height * ct;
+            let var = Vector3::new(
+                cfg.init_pos_var,
+                cfg.init_pos_var,
+                cfg.init_pos_var + height_var * ct * ct,
+            );
+            let v = Vector3::new(v_nav.x, v_nav.y, 0.0);
+            let vv = Vector3::new(
+                fv.var.x.max(fv.var.y),
+                fv.var.x.max(fv.var.y),
+                IN_FLIGHT_VZ_STD * IN_FLIGHT_VZ_STD,
+            );
+            core.initialise(
+                t,
+                source,
+                Vector3::new(0.0, 0.0, h),
+                var,
+                Some(v),
+                Some(vv),
+                ctx,
+            );
         }
         return;
     }

@@ -131,7 +131,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     core.monitors.gps_fix(t, enu, vel, cfg);
     if !core.initialised() {
         if core.att.known() {
-            let v_var = vel.map(|_| vel_noise * vel_noise);
+            let v_var = vel.map(|_| Vector3::repeat(vel_noise * vel_noise));
             core.initialise(t, source, enu, cov.diagonal(), vel, v_var, ctx);
         }
         return;

@@ -91,6 +91,10 @@ pub struct GroundState {
     pub last_h_aiding: Option<i64>,
     /// Held position while constrained.
     pub hold: Option<Vector3<f64>>,
+    /// The position variance (per axis) when the hold began: holding still says the
+    /// vehicle does not move, not where it is, so the constraints never make the
+    /// position more certain than it was then.
+    pub hold_var: Vector3<f64>,
     pub active: Option<Constraint>,
     pub since: Option<i64>,
     last_fuse: Option<i64>,
@@ -267,10 +271,11 @@ pub fn control(core: &mut Core, ctx: &Ctx, t: i64) {
             .on_ground_since
             .is_some_and(|s| t - s >= INIT_AFTER_US);
         if ready && core.att.known() {
-            let h = ground_height(core, t).map_or(0.0, |(h, _)| h);
-            let var = Vector3::repeat(ctx.cfg.init_pos_var);
+            let (h, h_var) = ground_height(core, t).unwrap_or((0.0, ctx.cfg.init_pos_var));
+            let p = ctx.cfg.init_pos_var;
+            let var = Vector3::new(p, p, h_var.max(p));
             let v = Some(Vector3::zeros());
-            let vv = Some(ctx.cfg.ground_vel_noise.powi(2));
+            let vv = Some(Vector3::repeat(ctx.cfg.ground_vel_noise.powi(2)));
             core.initialise(t, "ground", Vector3::new(0.0, 0.0, h), var, v, vv, ctx);
         }
         return;
@@ -302,14 +307,16 @@ pub fn control(core: &mut Core, ctx: &Ctx, t: i64) {
     }
     core.ground.last_fuse = Some(t);
     let Some(hold) = core.ground.hold else { return };
+    let floor = core.ground.hold_var;
     let cfg = ctx.cfg;
     match active {
         Constraint::OnGround => {
             let pn = cfg.ground_pos_noise.powi(2);
             let vn = cfg.ground_vel_noise.powi(2);
             let mut ok = fuse_force(core, &[IDX_V, IDX_V + 1, IDX_V + 2], Vector3::zeros(), vn);
-            let xy = Vector3::new(hold.x, hold.y, 0.0);
-            ok &= fuse_force(core, &[IDX_P, IDX_P + 1], xy, pn);
+            for axis in 0..2 {
+                ok &= fuse_to_floor(core, IDX_P + axis, hold[axis], pn, floor[axis]);
+            }
             if let Some((h, var)) = ground_height(core, t) {
                 fuse_height_force(core, h, var);
             }
@@ -319,9 +326,33 @@ pub fn control(core: &mut Core, ctx: &Ctx, t: i64) {
         }
         Constraint::FakePosition => {
             let n = cfg.fake_pos_noise.powi(2);
-            fuse_force(core, &[IDX_P, IDX_P + 1, IDX_P + 2], hold, n);
+            for axis in 0..3 {
+                fuse_to_floor(core, IDX_P + axis, hold[axis], n, floor[axis]);
+            }
         }
     }
+}
+
+/// Fuse a direct measurement of state `i` (value `z`, variance at least `var`),
+/// ungated, but never below `floor` for its variance: a constraint fused again and
+/// again is one fact, not new information each time. The measurement's variance is
+/// raised so that the state's comes out at `floor` at the least; above it, it is not
+/// fused. Returns whether the update went through (or was not needed).
+fn fuse_to_floor(core: &mut Core, i: usize, z: f64, var: f64, floor: f64) -> bool {
+    let Some(ekf) = core.ekf.as_mut() else {
+        return false;
+    };
+    let p = ekf.p[(i, i)];
+    if p <= floor * (1.0 + 1e-9) {
+        return true;
+    }
+    // Posterior p·r/(p + r) ≥ floor  ⇔  r ≥ p·floor/(p − floor).
+    let r = var.max(p * floor / (p - floor));
+    let mut m = Measurement::new(1);
+    m.set_jacobian(0, i, 1.0);
+    m.set_innovation(0, z - ekf.x[i]);
+    m.set_noise(0, 0, r);
+    ekf.update(&m, 0.0, true).accepted
 }
 
 /// Height above the ground while the range finder reads at or below its minimum: the
@@ -341,10 +372,17 @@ fn transition(core: &mut Core, t: i64, to: Option<Constraint>) {
     let pos = core.ekf.as_ref().map(|e| e.pos());
     match to {
         Some(c) => {
-            // The held point is where aiding left the vehicle; kept when switching
-            // between the two constraints.
-            if core.ground.hold.is_none() {
+            // The held point is where aiding left the vehicle; kept when it goes from
+            // the ground to unaided motion (it left from there).
+            // Set down after moving unaided (carried, or in the air): it stands where
+            // the estimate has it now, as uncertain as that is, not where it was.
+            let set_down = from == Some(Constraint::FakePosition) && c == Constraint::OnGround;
+            if core.ground.hold.is_none() || set_down {
                 core.ground.hold = pos;
+                core.ground.hold_var = core
+                    .ekf
+                    .as_ref()
+                    .map_or(Vector3::zeros(), |e| e.cov3(IDX_P).diagonal());
             }
             let p = core.ground.hold.unwrap_or_else(Vector3::zeros);
             let message = match c {
@@ -405,9 +443,19 @@ fn fuse_force(core: &mut Core, idx: &[usize], z: Vector3<f64>, var: f64) -> bool
     ekf.update(&m, 0.0, true).accepted
 }
 
+/// The height above the ground while on it, a fact about an interval (`[0, min]` of the
+/// range finder): fused down to its own variance and no further, however often.
 fn fuse_height_force(core: &mut Core, h_meas: f64, var: f64) {
     let Some(ekf) = core.ekf.as_mut() else { return };
     let m = Measurement::height(h_meas - ekf.height_above_terrain(), var);
+    // The variance of z − terrain along the measurement.
+    let (z, tz) = (IDX_P + 2, super::ekf::IDX_TERRAIN);
+    let p = ekf.p[(z, z)] + ekf.p[(tz, tz)] - 2.0 * ekf.p[(z, tz)];
+    if p <= var * (1.0 + 1e-9) {
+        return;
+    }
+    let mut m = m;
+    m.set_noise(0, 0, var.max(p * var / (p - var)));
     ekf.update(&m, 0.0, true);
 }
 

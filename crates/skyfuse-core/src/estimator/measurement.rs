@@ -9,9 +9,9 @@ use nalgebra::{Matrix3, Vector3};
 
 /// Most rows a measurement has (a 3-D position or velocity).
 pub const MAX_ROWS: usize = 3;
-/// Most states one Jacobian row reads (a position with both the GNSS error and an
-/// odometry offset would read three).
-const ROW_STATES: usize = 4;
+/// Most states one Jacobian row reads (a flow velocity reads the three velocity states
+/// and its source's scale and heading errors).
+const ROW_STATES: usize = 5;
 
 /// Innovation `y = z − h(x)`, Jacobian `H` (rows × n, sparse) and noise `R`.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -47,11 +47,16 @@ pub struct Monitors {
     pub diverge_since: Option<i64>,
     /// (monitor, position departure, velocity departure) of the last check.
     pub last: Option<(&'static str, f64, f64)>,
+    /// The last prediction was driven by an IMU. Without one the flow monitor is only a
+    /// lagging copy of the flow: no reference for the main filter.
+    pub imu: bool,
 }
 
 impl Monitors {
-    /// Propagate both with the world acceleration.
-    pub fn predict(&mut self, a_world: Vector3<f64>, dt: f64) {
+    /// Propagate both with the world acceleration (`imu`: measured by an IMU, not the
+    /// constant-velocity stand-in).
+    pub fn predict(&mut self, a_world: Vector3<f64>, dt: f64, imu: bool) {
+        self.imu = imu;
         for cf in [self.gps.as_mut(), self.flow.as_mut()]
             .into_iter()
             .flatten()
@@ -119,12 +124,16 @@ impl Monitors {
         }
     }
 
-    /// Compare the main filter with the applicable monitor.
+    /// Compare the main filter with the applicable monitor. A position departure counts
+    /// only beyond `monitor_pos_bound_m` and three times the filter's own horizontal 1σ
+    /// (`std_h`): within what the filter already says it may be off, it is no sign of
+    /// divergence.
     pub fn check(
         &mut self,
         t: i64,
         p: Vector3<f64>,
         v: Vector3<f64>,
+        std_h: f64,
         cfg: &EstimatorConfig,
     ) -> Option<MonitorReset> {
         if !cfg.monitor_enabled {
@@ -132,7 +141,7 @@ impl Monitors {
         }
         let (name, cf, horizontal) = match (&self.gps, &self.flow) {
             (Some(g), _) if t - g.t < GPS_FRESH_US => ("gps_imu", g.clone(), false),
-            (_, Some(f)) if t - f.t < FLOW_FRESH_US => ("flow_imu", f.clone(), true),
+            (_, Some(f)) if t - f.t < FLOW_FRESH_US && self.imu => ("flow_imu", f.clone(), true),
             _ => {
                 self.diverge_since = None;
                 self.last = None;
@@ -145,7 +154,8 @@ impl Monitors {
             ((p - cf.p).norm(), (v - cf.v).norm())
         };
         self.last = Some((name, pe, ve));
-        if pe <= cfg.monitor_pos_bound_m && ve <= cfg.monitor_vel_bound_mps {
+        let pos_bound = cfg.monitor_pos_bound_m.max(3.0 * std_h);
+        if pe <= pos_bound && ve <= cfg.monitor_vel_bound_mps {
             self.diverge_since = None;
             return None;
         }
@@ -154,10 +164,10 @@ impl Monitors {
             return None;
         }
         self.diverge_since = None;
-        let reason = if pe > cfg.monitor_pos_bound_m {
+        let reason = if pe > pos_bound {
             format!(
-                "position departs from the {name} monitor by {pe:.2} m (> {} m) for {} s",
-                cfg.monitor_pos_bound_m, cfg.monitor_time_s
+                "position departs from the {name} monitor by {pe:.2} m (> {pos_bound:.2} m) for {} s",
+                cfg.monitor_time_s
             )
         } else {
             format!(
@@ -197,7 +207,7 @@ mod tests {
         for i in 0..40 {
             let t = i * 100_000;
             m.gps_fix(t, Vector3::new(1.0, 2.0, 3.0), None, &cfg);
-            let r = m.check(t, Vector3::new(11.0, 2.0, 3.0), Vector3::zeros(), &cfg);
+            let r = m.check(t, Vector3::new(11.0, 2.0, 3.0), Vector3::zeros(), 0.5, &cfg);
             if t < 2_000_000 {
                 assert!(r.is_none(), "too early at {t}");
             } else {
@@ -208,5 +218,40 @@ mod tests {
             }
         }
         panic!("no reset");
+    }
+
+    /// A departure within three times the filter's own 1σ is no divergence; the flow
+    /// monitor is no reference without an IMU driving it.
+    #[test]
+    fn a_departure_the_filter_allows_for_or_an_unaided_flow_monitor_resets_nothing() {
+        let cfg = EstimatorConfig::default();
+        let mut m = Monitors::default();
+        for i in 0..40 {
+            let t = i * 100_000;
+            m.gps_fix(t, Vector3::new(1.0, 2.0, 3.0), None, &cfg);
+            // 10 m off, but the filter says 1σ 4 m.
+            let r = m.check(t, Vector3::new(11.0, 2.0, 3.0), Vector3::zeros(), 4.0, &cfg);
+            assert!(r.is_none(), "reset at {t} within 3σ");
+        }
+        let mut m = Monitors::default();
+        for i in 0..40 {
+            let t = i * 100_000;
+            m.predict(Vector3::zeros(), 0.1, false);
+            m.flow_velocity(t, Vector2::new(1.0, 0.0), Some(Vector3::zeros()), &cfg);
+            let r = m.check(t, Vector3::new(10.0, 0.0, 0.0), Vector3::zeros(), 0.1, &cfg);
+            assert!(r.is_none(), "reset to a flow monitor without an IMU at {t}");
+        }
+        // The same with an IMU: it resets.
+        let mut m = Monitors::default();
+        let mut reset = false;
+        for i in 0..40 {
+            let t = i * 100_000;
+            m.predict(Vector3::zeros(), 0.1, true);
+            m.flow_velocity(t, Vector2::new(1.0, 0.0), Some(Vector3::zeros()), &cfg);
+            reset |= m
+                .check(t, Vector3::new(10.0, 0.0, 0.0), Vector3::zeros(), 0.1, &cfg)
+                .is_some();
+        }
+        assert!(reset, "no reset with an IMU");
     }
 }

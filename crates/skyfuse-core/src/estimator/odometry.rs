@@ -118,7 +118,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
         let height = core.latest_height(t);
         let var = Vector3::repeat(cfg.init_pos_var);
         let v = b.vel_body.map(|vb| core.att.q * vb);
-        let v_var = v.map(|_| cfg.vo_vel_noise.powi(2));
+        let v_var = v.map(|_| Vector3::repeat(cfg.vo_vel_noise.powi(2)));
         let z = height.unwrap_or(0.0);
         core.initialise(t, source, Vector3::new(0.0, 0.0, z), var, v, v_var, ctx);
         if height.is_none() {

@@ -3,7 +3,9 @@
 //! Checks: finite, strictly inside (min, max) (config overrides the sample's limits; a
 //! reading at a limit is a clamp, not a distance), not flagged invalid by the sensor
 //! (a reading at or below the minimum still says "on the ground"), pointing down, tilt
-//! below `range_max_tilt_rad`. Control: kept as the flow's height; fused when the filter is
+//! below `range_max_tilt_rad`, and good for `range_quality_hold_ms` since the last
+//! reading flagged invalid or at/beyond the maximum (EKF2's quality hysteresis: a sonar
+//! out of range hears stray echoes, and one of them is no height). Control: kept as the flow's height; fused when the filter is
 //! initialised. Terrain reset (EKF2's `resetTerrainToRng`), when the reading fails the
 //! innovation gate and either follows readings at or below the minimum (the vehicle
 //! left the surface it stood on; the ground constraint's height no longer applies),
@@ -27,6 +29,10 @@ pub const HGT_FUSION_TIMEOUT_US: i64 = 5_000_000;
 /// moving (multirotors climb at 2.5–3 m/s: ArduPilot PILOT_SPEED_UP, PX4
 /// MPC_Z_VEL_MAX_UP).
 pub const RANGE_STEP_SPEED: f64 = 10.0;
+
+/// Why a good reading soon after bad ones is not fused.
+const RECOVERING: &str =
+    "good again for less than range_quality_hold_ms after an invalid or out-of-range reading";
 
 /// MAV_SENSOR_ROTATION_PITCH_270: downward.
 const MAV_SENSOR_DOWN: u8 = 25;
@@ -64,7 +70,20 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, r: &Range) {
         return;
     }
     if let Err(why) = checks(r, min, max) {
+        // Out of range above, or flagged bad: the hysteresis starts again.
+        if r.distance_m >= max || r.signal_quality == Some(SIGNAL_INVALID) {
+            *core.range_bad.get_or_insert_with(source, || t) = t;
+        }
         core.reject(t, source, why, ctx);
+        return;
+    }
+    let hold = (cfg.range_quality_hold_ms * 1000.0) as i64;
+    if core
+        .range_bad
+        .get(source)
+        .is_some_and(|&b| t - b < hold && t >= b)
+    {
+        core.reject(t, source, RECOVERING, ctx);
         return;
     }
     let after_ground = core.ground.range_says_ground(t);

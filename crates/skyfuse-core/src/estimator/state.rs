@@ -53,6 +53,9 @@ pub(crate) struct Core {
     pub flow_cal: FlowCalibrator,
     /// Latest range per source: (time, slant distance).
     pub range: SourceMap<(i64, f64)>,
+    /// Per range source, the last reading its sensor flagged invalid or that was at or
+    /// beyond its maximum (the quality hysteresis counts from it).
+    pub range_bad: SourceMap<i64>,
     /// On the ground / at rest, and the constraints without horizontal aiding.
     pub ground: ground::GroundState,
     pub wrls: Wrls,
@@ -385,14 +388,47 @@ impl Core {
             }
             return;
         }
-        let Some(ekf) = self.ekf.as_ref() else { return };
+        let cfg = ctx.cfg;
+        let (scale_var, heading_var) = (cfg.flow_scale_std.powi(2), cfg.flow_heading_std.powi(2));
+        let Some(ekf) = self.ekf.as_mut() else { return };
+        // A flow source reads (1 + k)·Rz(ψ) times the body velocity: k its scale error,
+        // ψ its heading error (both states of the filter).
+        let errors = (rows == 2 && (scale_var > 0.0 || heading_var > 0.0)).then(|| {
+            ekf.scale_rw = cfg.flow_scale_rw;
+            ekf.heading_rw = cfg.flow_heading_rw;
+            ekf.scale_state(source, scale_var.max(1e-12), heading_var.max(1e-12))
+        });
+        let (k, psi) = errors.map_or((0.0, 0.0), |i| (ekf.x[i], ekf.x[i + 1]));
         let rot = *self.att.q.to_rotation_matrix().matrix();
-        let pred = rot.transpose() * ekf.vel();
-        // Attitude error turns the velocity: |v|²·σ² per axis.
+        let rt = rot.transpose();
+        let pred = rt * ekf.vel();
+        // Attitude error turns the velocity: |v|²·σ² per axis (the roll and pitch part;
+        // the heading's lasting part is ψ).
         let att_var = ekf.vel().norm_squared() * self.att.cov.trace() / 3.0;
         let mut m = odometry::body_velocity_measurement(&rot, rows);
+        match errors {
+            Some(si) => {
+                // h = (1 + k)·(p_x − ψ·p_y, p_y + ψ·p_x), p = Rᵀv.
+                let turned = [pred.x - psi * pred.y, pred.y + psi * pred.x];
+                let dturn_dp = [[1.0, -psi], [psi, 1.0]];
+                for i in 0..2 {
+                    m.set_innovation(i, vb[i] - (1.0 + k) * turned[i]);
+                    for j in 0..3 {
+                        let dp = dturn_dp[i][0] * rt[(0, j)] + dturn_dp[i][1] * rt[(1, j)];
+                        m.set_jacobian(i, IDX_V + j, (1.0 + k) * dp);
+                    }
+                    m.set_jacobian(i, si, turned[i]);
+                    let dpsi = if i == 0 { -pred.y } else { pred.x };
+                    m.set_jacobian(i, si + 1, (1.0 + k) * dpsi);
+                }
+            }
+            None => {
+                for i in 0..rows {
+                    m.set_innovation(i, vb[i] - pred[i]);
+                }
+            }
+        }
         for i in 0..rows {
-            m.set_innovation(i, vb[i] - pred[i]);
             r[(i, i)] += att_var;
             for j in 0..rows {
                 m.set_noise(i, j, r[(i, j)]);
@@ -415,11 +451,16 @@ impl Core {
 
     /// Latest range-finder slant distance (within 200 ms).
     pub fn latest_range(&self, t: i64) -> Option<f64> {
+        self.latest_range_at(t).map(|(_, d)| d)
+    }
+
+    /// Latest range-finder reading within 200 ms: (its time, slant distance).
+    pub fn latest_range_at(&self, t: i64) -> Option<(i64, f64)> {
         self.range
             .values()
             .filter(|(tr, _)| (t - tr).abs() < 200_000)
             .max_by_key(|(tr, _)| *tr)
-            .map(|&(_, d)| d)
+            .copied()
     }
 
     pub fn latest_height(&self, t: i64) -> Option<f64> {
@@ -471,20 +512,21 @@ impl Core {
         pos: Vector3<f64>,
         pos_var: Vector3<f64>,
         vel: Option<Vector3<f64>>,
-        vel_var: Option<f64>,
+        vel_var: Option<Vector3<f64>>,
         ctx: &Ctx,
     ) {
         let cfg = ctx.cfg;
-        let vv = vel_var.unwrap_or(cfg.init_vel_var);
+        let vv = vel_var.unwrap_or_else(|| Vector3::repeat(cfg.init_vel_var));
         if !self.mode_wrls {
             let mut ekf = Ekf::new(
                 pos,
                 vel.unwrap_or_else(Vector3::zeros),
                 pos_var,
-                Vector3::repeat(vv),
+                vv,
                 cfg.init_accel_bias_var,
             );
             ekf.terrain_rw = cfg.terrain_rw;
+            ekf.terrain_gradient = cfg.terrain_gradient;
             let (b, bv) = (cfg.gnss_bias_std_m, cfg.gnss_bias_std_v_m);
             ekf.set_gnss_bias_model(Vector3::new(b, b, bv), cfg.gnss_bias_tau_s);
             if self.stats.get(source).is_some_and(|s| s.kind == "gnss")
@@ -569,6 +611,7 @@ impl Core {
                 .and_then(|c| c.drift_rw)
                 .unwrap_or(cfg.vo_drift_rw)
         };
+        let imu_drives = held.is_some() && self.att.known();
         let (f_body, var) = match held {
             Some((a, v)) if self.att.known() => (a, v + GRAVITY * GRAVITY * tilt_var),
             _ => {
@@ -587,7 +630,7 @@ impl Core {
             .as_ref()
             .map_or(Vector3::zeros(), |e| e.accel_bias());
         let a_world = rot * (f_body - ba) - Vector3::new(0.0, 0.0, GRAVITY);
-        self.monitors.predict(a_world, dt);
+        self.monitors.predict(a_world, dt, imu_drives);
         if let Some(ekf) = self.ekf.as_mut() {
             ekf.predict(f_body, &rot, dt, var, bias_rw, drift);
         }
@@ -658,7 +701,12 @@ impl Core {
             }
         }
         if let (Some(p), Some(v)) = (self.position(), self.velocity()) {
-            if let Some(r) = self.monitors.check(t, p, v, cfg) {
+            // The filter's own horizontal 1σ: a departure within it is no divergence.
+            let std_h = self
+                .ekf
+                .as_ref()
+                .map_or(0.0, |e| e.p[(0, 0)].max(e.p[(1, 1)]).max(0.0).sqrt());
+            if let Some(r) = self.monitors.check(t, p, v, std_h, cfg) {
                 self.apply_monitor_reset(t, r, ctx);
             }
             if !self.mode_wrls {
@@ -702,11 +750,17 @@ impl Core {
         } else {
             (r.position, r.velocity)
         };
-        let zvar = self.ekf.as_ref().map_or(cfg.reset_pos_var, |e| e.p[(2, 2)]);
+        // Never more certain after a reset than before it: the monitor is no better a
+        // measurement than the filter's own uncertainty says it was.
+        let before = self
+            .ekf
+            .as_ref()
+            .map_or(Vector3::zeros(), |e| e.cov3(IDX_P).diagonal());
+        let reset = |i: usize| before[i].max(cfg.reset_pos_var);
         let pos_var = if r.horizontal_only {
-            Vector3::new(cfg.reset_pos_var, cfg.reset_pos_var, zvar)
+            Vector3::new(reset(0), reset(1), before[2].max(0.0))
         } else {
-            Vector3::repeat(cfg.reset_pos_var)
+            Vector3::new(reset(0), reset(1), reset(2))
         };
         if let Some(ekf) = self.ekf.as_mut() {
             ekf.reset_pos_vel(pos, Some(vel), pos_var, cfg.reset_vel_var);

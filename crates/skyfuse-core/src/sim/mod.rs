@@ -101,6 +101,12 @@ impl Simulator {
         }
     }
 
+    /// The same flight with other hardware on the vehicle (see [`sensors::Hardware`]).
+    pub fn with_hardware(mut self, hardware: sensors::Hardware) -> Self {
+        self.models.hardware = hardware;
+        self
+    }
+
     pub fn faults(&self) -> Arc<FaultSchedule> {
         self.faults.clone()
     }

@@ -2,9 +2,10 @@
 //! that exist, and the faults injected on a schedule.
 
 use super::faults::{Fault, FaultKind, FaultSchedule};
-use super::sensors::{StreamSpec, DEMO_STREAMS};
-use super::truth::{Profile, LOOP_S};
+use super::sensors::{Hardware, StreamSpec, DEMO_STREAMS};
+use super::truth::{loop_s, Profile, LOOP_S};
 use super::Simulator;
+use crate::sample::SensorKind;
 use std::sync::Arc;
 
 /// One named scenario.
@@ -15,6 +16,7 @@ pub struct Scenario {
     pub profile: Profile,
     pub streams: Vec<StreamSpec>,
     pub faults: Vec<Fault>,
+    pub hardware: Hardware,
 }
 
 impl Scenario {
@@ -27,11 +29,72 @@ impl Scenario {
             .collect();
         let faults = Arc::new(FaultSchedule::new(sensors, self.faults.clone()));
         Simulator::with_profile(&self.streams, seed, duration_s, self.profile, faults)
+            .with_hardware(self.hardware)
+    }
+
+    /// Its length unless asked otherwise: one loop of its flight, s.
+    pub fn default_duration_s(&self) -> f64 {
+        loop_s(self.profile)
     }
 }
 
-/// Default length of a scenario: one loop of the flight, s.
+/// Default length of the demo's scenarios: one loop of the flight, s.
 pub const DEFAULT_DURATION_S: f64 = LOOP_S;
+
+/// A PX4Flow-class vehicle: flow without a ToF of its own (integrating at `flow_hz`),
+/// a downward range finder with its own limits, the autopilot's attitude; an IMU when
+/// `imu`. No GNSS, no camera.
+fn flow_vehicle(flow_hz: f64, range_hz: f64, attitude_hz: f64, imu: bool) -> Vec<StreamSpec> {
+    let mut streams = vec![
+        StreamSpec {
+            input_id: "attitude",
+            kind: SensorKind::Attitude,
+            rate_hz: attitude_hz,
+            delay_s: 0.005,
+        },
+        StreamSpec {
+            input_id: "flow",
+            kind: SensorKind::Flow,
+            rate_hz: flow_hz,
+            delay_s: 0.01,
+        },
+        StreamSpec {
+            input_id: "rangefinder",
+            kind: SensorKind::Range,
+            rate_hz: range_hz,
+            delay_s: 0.01,
+        },
+    ];
+    if imu {
+        streams.insert(0, DEMO_STREAMS[0]);
+    }
+    streams
+}
+
+/// A PX4Flow's own sonar: 0.3-3.7 m, echoes now and then beyond it.
+fn px4flow_sonar(flow_hz: f64) -> Hardware {
+    Hardware {
+        range_min_m: 0.3,
+        range_max_m: 3.7,
+        range_spurious: 0.03,
+        flow_tof: false,
+        flow_integration_s: 1.0 / flow_hz,
+        ..Hardware::default()
+    }
+}
+
+/// A PX4Flow at 9.5 Hz with a separate range finder to 4.3 m, its flow reading
+/// `scale` times the truth.
+fn slow_flow_outdoors(scale: f64) -> Hardware {
+    Hardware {
+        range_min_m: 0.1,
+        range_max_m: 4.3,
+        flow_tof: false,
+        flow_scale: scale,
+        flow_integration_s: 1.0 / 9.5,
+        ..Hardware::default()
+    }
+}
 
 fn streams_without(ids: &[&str]) -> Vec<StreamSpec> {
     DEMO_STREAMS
@@ -111,13 +174,47 @@ pub const NAMES: &[(&str, &str)] = &[
         "link-loss",
         "figure-eight; nothing arrives from 40 to 46 s (the Zenoh router restarts)",
     ),
+    (
+        "sonar-climb",
+        "climb to 12 m and hover outdoors for 280 s on a PX4Flow with its 0.3-3.7 m sonar (spurious echoes above it) + attitude; no IMU, no GNSS: nothing measures the height up there",
+    ),
+    (
+        "sonar-climb-imu",
+        "sonar-climb with the IMU as well",
+    ),
+    (
+        "flow-laps",
+        "290 s of 4 m/s laps outdoors at 3 m: a 9.5 Hz PX4Flow reading 5 % fast, a range finder to 4.3 m, attitude at 57 Hz; no IMU, no GNSS",
+    ),
+    (
+        "flow-laps-imu",
+        "flow-laps with the IMU, the flow reading 5 % slow",
+    ),
 ];
 
 /// Look up a scenario by name.
 pub fn scenario(name: &str) -> Option<Scenario> {
     let (name, description) = NAMES.iter().find(|(n, _)| *n == name).copied()?;
     let all = DEMO_STREAMS.to_vec();
+    let hardware = match name {
+        "sonar-climb" | "sonar-climb-imu" => px4flow_sonar(20.0),
+        "flow-laps" => slow_flow_outdoors(1.05),
+        "flow-laps-imu" => slow_flow_outdoors(0.95),
+        _ => Hardware::default(),
+    };
     let (profile, streams, faults) = match name {
+        "sonar-climb" => (
+            Profile::HighHover,
+            flow_vehicle(20.0, 10.0, 50.0, false),
+            vec![],
+        ),
+        "sonar-climb-imu" => (
+            Profile::HighHover,
+            flow_vehicle(20.0, 10.0, 50.0, true),
+            vec![],
+        ),
+        "flow-laps" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, false), vec![]),
+        "flow-laps-imu" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, true), vec![]),
         "demo" => (Profile::Demo, all, vec![]),
         "hover" => (Profile::Hover, all, vec![]),
         "figure8" => (Profile::Figure8, all, vec![]),
@@ -190,6 +287,7 @@ pub fn scenario(name: &str) -> Option<Scenario> {
         profile,
         streams,
         faults,
+        hardware,
     })
 }
 

@@ -102,6 +102,45 @@ const GPS_BIAS_RW: f64 = 0.05;
 const GPS_H_VAR: f64 = 0.6;
 const GPS_V_VAR: f64 = 1.8;
 
+/// What the simulated vehicle carries where scenarios differ: the range finder's
+/// limits, whether the flow module has its own ToF, the flow's scale error. The
+/// default is the demo vehicle (a TFmini-class range finder to 12 m, a flow module
+/// with a ToF).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hardware {
+    pub range_min_m: f64,
+    pub range_max_m: f64,
+    /// Out of range, a sonar still hears an echo now and then: this fraction of its
+    /// readings beyond its maximum are a spurious distance inside its limits, flagged
+    /// good (what makes a terrain estimate wander on a real PX4Flow sonar).
+    pub range_spurious: f64,
+    /// The flow module measures its own height (a ToF) alongside the flow.
+    pub flow_tof: bool,
+    /// The flow's translational rate is this times the truth (lens focal length or
+    /// calibration error: 1.05 reads 5 % fast).
+    pub flow_scale: f64,
+    /// The flow's integration interval, s (1 / its rate for an integrating sensor).
+    pub flow_integration_s: f64,
+}
+
+impl Default for Hardware {
+    fn default() -> Self {
+        Self {
+            range_min_m: RANGE_MIN,
+            range_max_m: RANGE_MAX,
+            range_spurious: 0.0,
+            flow_tof: true,
+            // No flow sensor reads its scale exactly: this one is 3 % fast.
+            flow_scale: DEFAULT_FLOW_SCALE,
+            flow_integration_s: 0.02,
+        }
+    }
+}
+
+/// The demo vehicle's flow reads this times the truth (a lens a little off its nominal
+/// focal length, as every real one is).
+const DEFAULT_FLOW_SCALE: f64 = 1.03;
+
 /// How fast a visual odometry that lost tracking wanders off, m/s.
 const LOST_TRACKING_MPS: f64 = 0.05;
 
@@ -119,6 +158,7 @@ pub struct SensorModels {
     gps_last_t: Option<f64>,
     last_fix: (f64, f64, f64),
     profile: Profile,
+    pub hardware: Hardware,
 }
 
 fn n(rng: &mut SmallRng, sigma: f64) -> f64 {
@@ -153,6 +193,7 @@ impl SensorModels {
             gps_last_t: None,
             last_fix: (HOME_LAT, HOME_LON, HOME_ALT),
             profile,
+            hardware: Hardware::default(),
         }
     }
 
@@ -196,6 +237,11 @@ impl SensorModels {
                 yaw: Some(s.attitude.euler_angles().2),
             }),
         }
+    }
+
+    /// Uniform in [0, 1).
+    fn uniform(&mut self) -> f64 {
+        rand::Rng::gen::<f64>(&mut self.rng)
     }
 
     fn noisy_attitude(&mut self, q: UnitQuaternion<f64>) -> UnitQuaternion<f64> {
@@ -297,7 +343,7 @@ impl SensorModels {
         // A downward camera at slant range d sees rotation (the body rate) plus
         // translation v/d; in FLU: rate = ω_xy + (v_y, -v_x)/d.
         let d = Self::slant_range(s).max(0.05);
-        let v = s.body_velocity();
+        let v = s.body_velocity() * self.hardware.flow_scale;
         let rate = Vector2::new(s.body_rate.x + v.y / d, s.body_rate.y - v.x / d)
             + Vector2::new(
                 n(&mut self.rng, FLOW_RATE_NOISE),
@@ -310,30 +356,43 @@ impl SensorModels {
             (200.0 + n(&mut self.rng, 15.0)).clamp(120.0, 255.0) as u8
         };
         let tof = (Self::slant_range(s) + 0.02 + n(&mut self.rng, TOF_NOISE)).clamp(0.0, TOF_MAX);
+        let tof = self.hardware.flow_tof.then_some(Tof {
+            distance_m: tof,
+            strength: Some(200),
+            precision: Some(5),
+            status: Some(0),
+        });
         OpticalFlow {
             rate: Some(rate),
             gyro: None,
             velocity: None,
-            integration_s: Some(0.02),
+            integration_s: Some(self.hardware.flow_integration_s),
             quality,
             status: Some(if quality >= 50 { 1 } else { 0 }),
-            tof: Some(Tof {
-                distance_m: tof,
-                strength: Some(200),
-                precision: Some(5),
-                status: Some(0),
-            }),
+            tof,
         }
     }
 
     pub fn range(&mut self, s: &TruthState) -> Range {
-        let d = (Self::slant_range(s) + n(&mut self.rng, RANGE_NOISE)).clamp(RANGE_MIN, RANGE_MAX);
+        let hw = self.hardware;
+        let (min, max) = (hw.range_min_m, hw.range_max_m);
+        let true_d = Self::slant_range(s) + n(&mut self.rng, RANGE_NOISE);
+        let mut quality = 90;
+        let d = if true_d < max {
+            true_d.max(min)
+        } else if hw.range_spurious > 0.0 && self.uniform() < hw.range_spurious {
+            // An echo off something (a gust of dust, a tree, the vehicle's own wash).
+            min + (max - min) * self.uniform()
+        } else {
+            quality = 1; // MAVLink DISTANCE_SENSOR: 1 = invalid signal
+            max
+        };
         // MAVLink carries centimetres: quantise as the wire does.
         Range {
             distance_m: (d * 100.0).round() / 100.0,
-            min_m: Some(RANGE_MIN),
-            max_m: Some(RANGE_MAX),
-            signal_quality: Some(90),
+            min_m: Some(min),
+            max_m: Some(max),
+            signal_quality: Some(quality),
             variance: None,
             orientation: Some(25),
         }

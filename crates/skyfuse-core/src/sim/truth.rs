@@ -58,10 +58,82 @@ pub enum Profile {
     Indoor,
     /// Take-off, hold position with slow yaw changes, landing.
     Hover,
+    /// Climb to [`HIGH_HOVER_M`] (well above a short-range sonar), hold position
+    /// outdoors for minutes with a wind-driven wander, descend and land: a PX4Flow
+    /// with its 0.3-3.7 m sonar on a vehicle flying at 12 m.
+    HighHover,
+    /// A long outdoor flight at cruise speed (a [`LAP_RADIUS_M`] circle at
+    /// [`LAP_SPEED`]) at [`LAP_HEIGHT_M`]: a low-rate flow sensor over open ground.
+    Laps,
+}
+
+/// Height of the [`Profile::HighHover`] flight, m.
+pub const HIGH_HOVER_M: f64 = 12.0;
+/// Phases of the [`Profile::HighHover`] flight, s: climb from take-off until
+/// `HIGH_CLIMBED`, hover until `HIGH_DESCENT`, land at `HIGH_LANDED`; its loop.
+const HIGH_CLIMBED: f64 = 16.0;
+const HIGH_DESCENT: f64 = 300.0;
+const HIGH_LANDED: f64 = 312.0;
+const HIGH_LOOP_S: f64 = 320.0;
+/// Wander of the high hover (wind gusts against the position controller), m.
+const HIGH_WANDER_M: f64 = 1.5;
+/// The [`Profile::Laps`] flight: a circle of this radius, flown at this speed and
+/// height; it ramps up over [`LAP_RAMP_S`] after the climb and lands at the end.
+pub const LAP_RADIUS_M: f64 = 60.0;
+pub const LAP_SPEED: f64 = 4.0;
+pub const LAP_HEIGHT_M: f64 = 3.0;
+const LAP_RAMP_S: f64 = 10.0;
+const LAP_LANDING: f64 = 300.0;
+const LAP_LANDED: f64 = 306.0;
+const LAP_LOOP_S: f64 = 312.0;
+
+/// One loop of `profile`'s flight, s (the flight repeats after it).
+pub fn loop_s(profile: Profile) -> f64 {
+    match profile {
+        Profile::HighHover => HIGH_LOOP_S,
+        Profile::Laps => LAP_LOOP_S,
+        Profile::Demo | Profile::Figure8 | Profile::Indoor | Profile::Hover => LOOP_S,
+    }
+}
+
+/// Climb to `height` between take-off and `climbed`, descend from `descent` to
+/// `landed`.
+fn height_profile(t: f64, height: f64, climbed: f64, descent: f64, landed: f64) -> f64 {
+    height
+        * smoothstep5((t - T_TAKEOFF) / (climbed - T_TAKEOFF))
+        * (1.0 - smoothstep5((t - descent) / (landed - descent)))
 }
 
 fn position_at(profile: Profile, t_loop: f64) -> Vector3<f64> {
     let t = t_loop;
+    match profile {
+        Profile::HighHover => {
+            let z = height_profile(t, HIGH_HOVER_M, HIGH_CLIMBED, HIGH_DESCENT, HIGH_LANDED);
+            // Gusts: two slow periods per axis, the wander fading in once up.
+            let e = smoothstep5((t - HIGH_CLIMBED) / 10.0)
+                * (1.0 - smoothstep5((t - (HIGH_DESCENT - 10.0)) / 10.0));
+            let a = HIGH_WANDER_M * e;
+            return Vector3::new(
+                a * (0.7 * (2.0 * PI * t / 41.0).sin() + 0.3 * (2.0 * PI * t / 13.0).sin()),
+                a * (0.6 * (2.0 * PI * t / 37.0).cos() + 0.4 * (2.0 * PI * t / 11.0).sin())
+                    - a * 0.6,
+                z,
+            );
+        }
+        Profile::Laps => {
+            let z = height_profile(t, LAP_HEIGHT_M, T_CRUISE, LAP_LANDING, LAP_LANDED);
+            // Distance along the circle: the speed ramps up and down smoothly (its
+            // integral is taken numerically below, exactly enough at 1 ms steps).
+            let s = lap_distance(t);
+            let phi = s / LAP_RADIUS_M;
+            return Vector3::new(
+                LAP_RADIUS_M * phi.sin(),
+                LAP_RADIUS_M * (1.0 - phi.cos()),
+                z,
+            );
+        }
+        Profile::Demo | Profile::Figure8 | Profile::Indoor | Profile::Hover => {}
+    }
     let z = CRUISE_HEIGHT
         * smoothstep5((t - T_TAKEOFF) / (T_CRUISE - T_TAKEOFF))
         * (1.0 - smoothstep5((t - T_LANDING) / (T_LANDED - T_LANDING)));
@@ -84,11 +156,47 @@ fn position_at(profile: Profile, t_loop: f64) -> Vector3<f64> {
     )
 }
 
+/// Distance flown along the laps' circle by `t`: the speed ramps in over
+/// [`LAP_RAMP_S`] after the climb and out before the landing (closed form of the
+/// integral of [`LAP_SPEED`] × smoothstep, so positions are exact at any step).
+fn lap_distance(t: f64) -> f64 {
+    // ∫ smoothstep5 over [0, x] (x in 0..1) = x⁴(2.5 − 3x + x²)... times the ramp.
+    fn ramp_integral(x: f64) -> f64 {
+        let x = x.clamp(0.0, 1.0);
+        x.powi(4) * (2.5 - 3.0 * x + x * x)
+    }
+    let up = |t: f64| {
+        let x = (t - T_CRUISE) / LAP_RAMP_S;
+        if x <= 1.0 {
+            LAP_RAMP_S * ramp_integral(x)
+        } else {
+            LAP_RAMP_S * ramp_integral(1.0) + (t - T_CRUISE - LAP_RAMP_S)
+        }
+    };
+    let down_start = LAP_LANDING - LAP_RAMP_S;
+    let down = |t: f64| {
+        // What the ramp-down takes away from full speed after down_start.
+        let x = (t - down_start) / LAP_RAMP_S;
+        if x <= 0.0 {
+            0.0
+        } else if x <= 1.0 {
+            LAP_RAMP_S * ramp_integral(x)
+        } else {
+            LAP_RAMP_S * ramp_integral(1.0) + (t - down_start - LAP_RAMP_S)
+        }
+    };
+    LAP_SPEED * (up(t.max(T_CRUISE)) - down(t))
+}
+
 /// Amplitude of the hover's wander, m.
 const HOVER_WANDER_M: f64 = 0.3;
 
-fn yaw_at(t: f64) -> f64 {
-    0.4 + 0.5 * (2.0 * PI * t / 45.0).sin() * envelope(t)
+fn yaw_at(profile: Profile, t: f64) -> f64 {
+    match profile {
+        // Nose along the track, as a vehicle cruising forward flies.
+        Profile::Laps => 0.4 + lap_distance(t) / LAP_RADIUS_M,
+        _ => 0.4 + 0.5 * (2.0 * PI * t / 45.0).sin() * envelope(t),
+    }
 }
 
 fn attitude_from(acc: Vector3<f64>, yaw: f64) -> UnitQuaternion<f64> {
@@ -108,7 +216,7 @@ pub fn truth(t: f64) -> TruthState {
 /// Truth of a flight `profile` at time `t` seconds since the start (loops every [`LOOP_S`]).
 pub fn truth_of(profile: Profile, t: f64) -> TruthState {
     let position_at = |t: f64| position_at(profile, t);
-    let tl = t.rem_euclid(LOOP_S);
+    let tl = t.rem_euclid(loop_s(profile));
     let h = 1e-3;
     let p0 = position_at(tl - h);
     let p1 = position_at(tl);
@@ -117,7 +225,7 @@ pub fn truth_of(profile: Profile, t: f64) -> TruthState {
     let acceleration = (p2 - 2.0 * p1 + p0) / (h * h);
     let att = |tt: f64| {
         let a = (position_at(tt + h) - 2.0 * position_at(tt) + position_at(tt - h)) / (h * h);
-        attitude_from(a, yaw_at(tt))
+        attitude_from(a, yaw_at(profile, tt))
     };
     let attitude = att(tl);
     let q_next = att(tl + h);
@@ -134,7 +242,7 @@ pub fn truth_of(profile: Profile, t: f64) -> TruthState {
         indoor: match profile {
             Profile::Demo => (T_INDOOR..T_OUTDOOR_AGAIN).contains(&tl),
             Profile::Indoor => true,
-            Profile::Figure8 | Profile::Hover => false,
+            Profile::Figure8 | Profile::Hover | Profile::HighHover | Profile::Laps => false,
         },
     }
 }

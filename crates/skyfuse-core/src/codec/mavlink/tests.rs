@@ -4,29 +4,48 @@
 
 use super::*;
 use crate::sample::{frames, GnssFixType, SensorData};
+use crate::some_or_skip;
 use ::mavlink::dialects::common::{self as mc, MavMessage};
 use ::mavlink::MavlinkVersion;
 use nalgebra::{Matrix3, UnitQuaternion, Vector2, Vector3};
 use proptest::prelude::*;
 use serde_json::Value;
 
-const GOLDEN: &str = include_str!("../../../../../tests/data/bridges/mavlink-server-samples.jsonl");
+/// The real mavlink-server's captures (../shared/data/bridges), or None (skipped).
+fn golden_file(test: &str) -> Option<&'static str> {
+    static TEXT: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    TEXT.get_or_init(|| {
+        let path = crate::shared_data::shared_data(
+            "bridges/mavlink-server-samples.jsonl",
+            "the mavlink-server golden tests",
+        )?;
+        Some(std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display())))
+    })
+    .as_deref()
+    .or_else(|| {
+        crate::shared_data::skipped(test, "no mavlink-server captures (see above)");
+        None
+    })
+}
 const VECTORS: &str = include_str!("../../../../../tests/data/mavlink_vectors.json");
 
-fn golden(label: &str) -> String {
-    for line in GOLDEN.lines() {
+/// The captured payload of `label`, or None when the captures are absent (skipped).
+fn golden(label: &str) -> Option<String> {
+    for line in golden_file(label)?.lines() {
         let v: Value = serde_json::from_str(line).unwrap();
         if v["message"] == label {
-            return v["payload"].as_str().unwrap().to_string();
+            return Some(v["payload"].as_str().unwrap().to_string());
         }
     }
     panic!("no golden line {label}");
 }
 
-fn golden_decoded(label: &str) -> Decoded {
-    decode_json(golden(label).as_bytes())
-        .unwrap_or_else(|e| panic!("{label}: {e}"))
-        .unwrap_or_else(|| panic!("{label}: no sample"))
+fn golden_decoded(label: &str) -> Option<Decoded> {
+    Some(
+        decode_json(golden(label)?.as_bytes())
+            .unwrap_or_else(|e| panic!("{label}: {e}"))
+            .unwrap_or_else(|| panic!("{label}: no sample")),
+    )
 }
 
 fn hex(s: &str) -> Vec<u8> {
@@ -64,7 +83,7 @@ fn enu_flu(r_ned_frd: Matrix3<f64>) -> Matrix3<f64> {
 #[test]
 fn golden_heartbeat_is_the_armed_state() {
     // ArduCopter's heartbeat, armed (MAV_MODE_FLAG_SAFETY_ARMED in base_mode).
-    let d = decode_json(golden("HEARTBEAT").as_bytes())
+    let d = decode_json(some_or_skip!(golden("HEARTBEAT")).as_bytes())
         .unwrap()
         .unwrap();
     assert_eq!(d.mav_origin, Some((1, 1)));
@@ -79,7 +98,7 @@ fn golden_heartbeat_is_the_armed_state() {
 
 #[test]
 fn golden_highres_imu_is_flu_specific_force() {
-    let d = golden_decoded("HIGHRES_IMU");
+    let d = some_or_skip!(golden_decoded("HIGHRES_IMU"));
     assert_eq!(d.stamp_us, Some(1_700_000_000_000_000));
     assert_eq!(d.mav_origin, Some((1, 1)));
     let SensorData::Imu(imu) = d.data else {
@@ -93,7 +112,7 @@ fn golden_highres_imu_is_flu_specific_force() {
 
 #[test]
 fn golden_attitude() {
-    let d = golden_decoded("ATTITUDE");
+    let d = some_or_skip!(golden_decoded("ATTITUDE"));
     assert_eq!(d.stamp_us, Some(1_000_000));
     let SensorData::Attitude(a) = d.data else {
         panic!()
@@ -105,7 +124,7 @@ fn golden_attitude() {
 
 #[test]
 fn golden_optical_flow() {
-    let d = golden_decoded("OPTICAL_FLOW");
+    let d = some_or_skip!(golden_decoded("OPTICAL_FLOW"));
     let SensorData::Flow(f) = d.data else {
         panic!()
     };
@@ -119,7 +138,7 @@ fn golden_optical_flow() {
 
 #[test]
 fn golden_optical_flow_rad() {
-    let d = golden_decoded("OPTICAL_FLOW_RAD");
+    let d = some_or_skip!(golden_decoded("OPTICAL_FLOW_RAD"));
     let SensorData::Flow(f) = d.data else {
         panic!()
     };
@@ -136,7 +155,7 @@ fn golden_optical_flow_rad() {
 
 #[test]
 fn golden_distance_sensor() {
-    let d = golden_decoded("DISTANCE_SENSOR");
+    let d = some_or_skip!(golden_decoded("DISTANCE_SENSOR"));
     assert_eq!(d.stamp_us, Some(1_000_000));
     let SensorData::Range(r) = d.data else {
         panic!()
@@ -151,7 +170,7 @@ fn golden_distance_sensor() {
 
 #[test]
 fn golden_gps_raw_int() {
-    let d = golden_decoded("GPS_RAW_INT");
+    let d = some_or_skip!(golden_decoded("GPS_RAW_INT"));
     let SensorData::Gnss(g) = d.data else {
         panic!()
     };
@@ -173,7 +192,7 @@ fn golden_gps_raw_int() {
 
 #[test]
 fn golden_global_position_int() {
-    let d = golden_decoded("GLOBAL_POSITION_INT");
+    let d = some_or_skip!(golden_decoded("GLOBAL_POSITION_INT"));
     let SensorData::AutopilotEstimate(e) = d.data else {
         panic!()
     };
@@ -189,7 +208,7 @@ fn golden_global_position_int() {
 
 #[test]
 fn golden_local_position_ned() {
-    let d = golden_decoded("LOCAL_POSITION_NED");
+    let d = some_or_skip!(golden_decoded("LOCAL_POSITION_NED"));
     let SensorData::AutopilotEstimate(e) = d.data else {
         panic!()
     };
@@ -200,7 +219,7 @@ fn golden_local_position_ned() {
 #[test]
 fn golden_odometry_and_its_nan_covariance() {
     for (label, twist_known) in [("ODOMETRY", true), ("ODOMETRY(nan)", false)] {
-        let d = golden_decoded(label);
+        let d = some_or_skip!(golden_decoded(label));
         let SensorData::Odometry(o) = d.data else {
             panic!()
         };
@@ -236,7 +255,7 @@ fn golden_odometry_and_its_nan_covariance() {
 #[test]
 fn every_golden_line_decodes() {
     let mut n = 0;
-    for line in GOLDEN.lines() {
+    for line in some_or_skip!(golden_file("every_golden_line_decodes")).lines() {
         let v: Value = serde_json::from_str(line).unwrap();
         let payload = v["payload"].as_str().unwrap();
         let d = decode_json(payload.as_bytes()).unwrap();
@@ -248,7 +267,7 @@ fn every_golden_line_decodes() {
 
 #[test]
 fn legacy_bitmask_form_and_the_updated_mask() {
-    let text = golden("HIGHRES_IMU");
+    let text = some_or_skip!(golden("HIGHRES_IMU"));
     let start = text.find("\"fields_updated\":\"").unwrap();
     let end = start + text[start..].find("\",").unwrap() + 2;
     let with = |v: &str| format!("{}\"fields_updated\":{v},{}", &text[..start], &text[end..]);
@@ -288,7 +307,7 @@ fn legacy_bitmask_form_and_the_updated_mask() {
 
 #[test]
 fn errors_name_message_and_field() {
-    let text = golden("HIGHRES_IMU");
+    let text = some_or_skip!(golden("HIGHRES_IMU"));
     let e = decode_json(text.replace("\"xacc\":0.5,", "").as_bytes()).unwrap_err();
     assert_eq!(e.to_string(), "HIGHRES_IMU: missing field `xacc`");
     let e = decode_json(text.replace("\"xacc\":0.5", "\"xacc\":\"0.5\"").as_bytes()).unwrap_err();
@@ -337,18 +356,19 @@ fn errors_name_message_and_field() {
     let ahrs2 = r#"{"header":{"system_id":1,"component_id":1,"sequence":1,"message_id":178},"message":{"type":"AHRS2","roll":NaN}}"#;
     assert_eq!(decode_json(ahrs2.as_bytes()), Ok(None));
     // A bad ODOMETRY frame id is named.
-    let odo = golden("ODOMETRY").replace("MAV_FRAME_LOCAL_FRD", "MAV_FRAME_GLOBAL");
+    let odo = some_or_skip!(golden("ODOMETRY")).replace("MAV_FRAME_LOCAL_FRD", "MAV_FRAME_GLOBAL");
     assert!(
         matches!(decode_json(odo.as_bytes()), Err(DecodeError::WrongType { field, .. }) if field == "frame_id")
     );
     // Older definitions' frame names are still understood.
-    let odo = golden("ODOMETRY").replace("MAV_FRAME_LOCAL_FRD", "MAV_FRAME_VISION_NED");
+    let odo =
+        some_or_skip!(golden("ODOMETRY")).replace("MAV_FRAME_LOCAL_FRD", "MAV_FRAME_VISION_NED");
     assert!(decode_json(odo.as_bytes()).unwrap().is_some());
 }
 
 #[test]
 fn a_nan_where_mavlink_means_unknown_is_none() {
-    let text = golden("OPTICAL_FLOW_RAD")
+    let text = some_or_skip!(golden("OPTICAL_FLOW_RAD"))
         .replace("\"integrated_xgyro\":0.0078125", "\"integrated_xgyro\":NaN")
         .replace("\"distance\":1.25", "\"distance\":NaN");
     let d = decode_json(text.as_bytes()).unwrap().unwrap();
@@ -358,7 +378,7 @@ fn a_nan_where_mavlink_means_unknown_is_none() {
     assert_eq!(f.gyro, None);
     assert_eq!(f.tof, None);
     assert!(f.rate.is_some());
-    let text = golden("LOCAL_POSITION_NED").replace("\"vx\":0.25", "\"vx\":NaN");
+    let text = some_or_skip!(golden("LOCAL_POSITION_NED")).replace("\"vx\":0.25", "\"vx\":NaN");
     let d = decode_json(text.as_bytes()).unwrap().unwrap();
     let SensorData::AutopilotEstimate(e) = d.data else {
         panic!()
@@ -682,7 +702,7 @@ fn encode_json_golden_lines_byte_for_byte() {
     // The real bridge's text, rebuilt from a message rust-mavlink 0.21's serde reads out
     // of it (so 0.21 also reads 0.16's form). Not the NaN line: serde reads no f32 from
     // null; the vectors cover NaN.
-    for line in GOLDEN.lines() {
+    for line in some_or_skip!(golden_file("encode_json_golden_lines_byte_for_byte")).lines() {
         let v: Value = serde_json::from_str(line).unwrap();
         if v["message"] == "ODOMETRY(nan)" {
             continue;

@@ -1,20 +1,37 @@
-//! The PX4 log reader against the real flight in tests/data and constructed files.
+//! The PX4 log reader against the real flights in ../shared/data (skipped, saying so,
+//! when absent) and constructed files.
 
 use super::*;
+use crate::some_or_skip;
 use std::collections::BTreeMap;
 
-/// The real flight, trimmed copy in the repository's tests/data.
-const DATA_DIR: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/../../tests/data/px4-flow-vio-7c824ee5"
-);
+/// The real indoor flight (CSV export) and the real GPS ULog, in ../shared/data.
+const FLOW_VIO: &str = "px4-flow-vio-7c824ee5";
+const GPS_ULOG: &str = "px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg";
 
-fn real() -> &'static Px4Log {
+/// The real flight's directory, or None (the test says it is skipped).
+fn data_dir(test: &str) -> Option<PathBuf> {
+    crate::shared_data::shared_data(FLOW_VIO, test)
+}
+
+/// The real flight as read, or None when its data is absent.
+fn real_or_skip(test: &str) -> Option<&'static Px4Log> {
     static LOG: std::sync::OnceLock<Px4Log> = std::sync::OnceLock::new();
-    LOG.get_or_init(|| match read_dir(Path::new(DATA_DIR)) {
+    let dir = data_dir(test)?;
+    Some(LOG.get_or_init(|| match read_dir(&dir) {
         Ok(log) => log,
-        Err(e) => panic!("reading {DATA_DIR}: {e}"),
-    })
+        Err(e) => panic!("reading {}: {e}", dir.display()),
+    }))
+}
+
+/// `real!(test)`: the real flight, or return from the test (skipped) when absent.
+macro_rules! real {
+    ($test:expr) => {
+        match real_or_skip($test) {
+            Some(log) => log,
+            None => return,
+        }
+    };
 }
 
 fn first_of<'a>(log: &'a Px4Log, source: &str) -> &'a Sample {
@@ -55,7 +72,7 @@ impl Drop for TempDir {
 
 #[test]
 fn real_flight_topics_and_row_counts() {
-    let log = real();
+    let log = real!("real_flight_topics_and_row_counts");
     let got: BTreeMap<&str, (&str, usize, usize)> = log
         .topics
         .iter()
@@ -98,7 +115,7 @@ fn real_flight_topics_and_row_counts() {
 
 #[test]
 fn real_flight_is_time_ordered_and_offline_stamped() {
-    let log = real();
+    let log = real!("real_flight_is_time_ordered_and_offline_stamped");
     assert!(log
         .samples
         .windows(2)
@@ -112,7 +129,7 @@ fn real_flight_is_time_ordered_and_offline_stamped() {
 
 #[test]
 fn first_vio_row_converts_ned_frd_to_enu_flu() {
-    let s = first_of(real(), "vio");
+    let s = first_of(real!("first_vio_row_converts_ned_frd_to_enu_flu"), "vio");
     assert_eq!(s.stamp_us, Some(2_760_553));
     let SensorData::Odometry(o) = &s.data else {
         panic!("vio is not odometry: {:?}", s.data)
@@ -151,7 +168,7 @@ fn first_vio_row_converts_ned_frd_to_enu_flu() {
 #[test]
 fn vio_velocity_matches_its_position_derivative() {
     // velocity_frame 3 is body FRD: rotated to the world it must be d(position)/dt.
-    let odo: Vec<(f64, &Odometry)> = real()
+    let odo: Vec<(f64, &Odometry)> = real!("vio_velocity_matches_its_position_derivative")
         .samples
         .iter()
         .filter_map(|s| match (&s.data, s.stamp_us) {
@@ -173,7 +190,7 @@ fn vio_velocity_matches_its_position_derivative() {
 
 #[test]
 fn first_flow_row_of_instance_1() {
-    let s = first_of(real(), "flow_1");
+    let s = first_of(real!("first_flow_row_of_instance_1"), "flow_1");
     assert_eq!(s.stamp_us, Some(71_402_222));
     let SensorData::Flow(f) = &s.data else {
         panic!("not flow: {:?}", s.data)
@@ -198,7 +215,7 @@ fn flow_sign_matches_vio_motion_in_the_sample_convention() {
     // and the range finder while airborne: both coefficients must come out positive
     // (b near 1). PX4's FRD y axis left unconverted would make both negative on y.
     // VIO's roll rate is noisy, hence the loose bound on a.
-    let log = real();
+    let log = real!("flow_sign_matches_vio_motion_in_the_sample_convention");
     let series = |src: &str| -> Vec<(i64, &'static SensorData)> {
         log.samples
             .iter()
@@ -263,7 +280,7 @@ fn flow_sign_matches_vio_motion_in_the_sample_convention() {
 
 #[test]
 fn first_range_rows() {
-    let log = real();
+    let log = real!("first_range_rows");
     let SensorData::Range(r) = &first_of(log, "range").data else {
         panic!("not range")
     };
@@ -280,12 +297,12 @@ fn first_range_rows() {
 }
 
 /// EKF2's quaternions of the real log as read, before the stand-in replaces them.
-fn real_quaternions() -> &'static Px4Log {
+fn real_quaternions(data: &Path) -> &'static Px4Log {
     static RAW: std::sync::OnceLock<Px4Log> = std::sync::OnceLock::new();
     RAW.get_or_init(|| {
         let dir = TempDir::new("quaternions");
-        let name = "estimator_states_0.csv.gz";
-        if let Err(e) = std::fs::copy(Path::new(DATA_DIR).join(name), dir.0.join(name)) {
+        let name = "estimator_states_0.csv";
+        if let Err(e) = std::fs::copy(data.join(name), dir.0.join(name)) {
             panic!("copying {name}: {e}");
         }
         match read_dir(&dir.0) {
@@ -297,8 +314,9 @@ fn real_quaternions() -> &'static Px4Log {
 
 #[test]
 fn attitude_and_ekf2_heading_agree() {
-    let log = real();
-    let s = first_of(real_quaternions(), "attitude_states");
+    let log = real!("attitude_and_ekf2_heading_agree");
+    let data = some_or_skip!(data_dir("attitude_and_ekf2_heading_agree"));
+    let s = first_of(real_quaternions(&data), "attitude_states");
     assert_eq!(s.stamp_us, Some(1_692_866));
     let SensorData::Attitude(a) = &s.data else {
         panic!("not attitude")
@@ -328,7 +346,7 @@ fn attitude_and_ekf2_heading_agree() {
     };
     assert!(close(yaw_of(&h.orientation), yaw, 1e-9));
     let t = stand_in.stamp_us.unwrap_or_default();
-    let nearest = real_quaternions()
+    let nearest = real_quaternions(&data)
         .samples
         .iter()
         .min_by_key(|s| (s.stamp_us.unwrap_or_default() - t).abs())
@@ -352,7 +370,7 @@ fn the_attitude_stand_in_is_tilted_when_the_vehicle_is() {
         SensorData::Attitude(a) => (a.orientation * Vector3::z()).angle(&Vector3::z()),
         _ => f64::NAN,
     };
-    let held: Vec<f64> = real()
+    let held: Vec<f64> = real!("the_attitude_stand_in_is_tilted_when_the_vehicle_is")
         .samples
         .iter()
         .filter(|s| s.source.as_ref() == "attitude")
@@ -364,7 +382,7 @@ fn the_attitude_stand_in_is_tilted_when_the_vehicle_is() {
         .collect();
     assert!(held.len() > 60, "{}", held.len());
     assert!(held.iter().all(|t| t.to_degrees() > 70.0), "{held:?}");
-    let before = real()
+    let before = real!("the_attitude_stand_in_is_tilted_when_the_vehicle_is")
         .samples
         .iter()
         .filter(|s| s.source.as_ref() == "attitude")
@@ -375,7 +393,7 @@ fn the_attitude_stand_in_is_tilted_when_the_vehicle_is() {
 
 #[test]
 fn imu_reads_gravity_up_in_flu() {
-    let SensorData::Imu(i) = &first_of(real(), "imu").data else {
+    let SensorData::Imu(i) = &first_of(real!("imu_reads_gravity_up_in_flu"), "imu").data else {
         panic!("not imu")
     };
     let a = i.accel.unwrap_or_else(|| panic!("no accel"));
@@ -386,8 +404,9 @@ fn imu_reads_gravity_up_in_flu() {
 
 #[test]
 fn progress_reaches_the_total() {
+    let data = some_or_skip!(data_dir("progress_reaches_the_total"));
     let mut calls = Vec::new();
-    let log = read_dir_with_progress(Path::new(DATA_DIR), &mut |d, t| calls.push((d, t)));
+    let log = read_dir_with_progress(&data, &mut |d, t| calls.push((d, t)));
     assert!(log.is_ok());
     assert!(calls.len() > 5, "{} calls", calls.len());
     assert!(calls
@@ -395,12 +414,10 @@ fn progress_reaches_the_total() {
         .all(|w| w[0].0 <= w[1].0 && w[0].1 == w[1].1));
     let (done, total) = calls[calls.len() - 1];
     assert_eq!(done, total);
-    let known: u64 = real()
+    let known: u64 = real!("progress_reaches_the_total")
         .topics
         .iter()
-        .filter_map(|t| {
-            std::fs::metadata(Path::new(DATA_DIR).join(format!("{}.csv.gz", t.name))).ok()
-        })
+        .filter_map(|t| std::fs::metadata(data.join(format!("{}.csv", t.name))).ok())
         .map(|m| m.len())
         .sum();
     assert_eq!(total, known);
@@ -603,8 +620,10 @@ fn px4_1_14_and_1_15_layouts_read() {
 
 #[test]
 fn the_real_ulog_reads_directly() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data/px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg");
+    let path = some_or_skip!(crate::shared_data::shared_data(
+        GPS_ULOG,
+        "the_real_ulog_reads_directly"
+    ));
     let log = read_ulog_with_progress(&path, &mut |_, _| {}).unwrap_or_else(|e| panic!("{e}"));
     let count = |src: &str| {
         log.samples
@@ -659,8 +678,10 @@ fn the_real_ulog_reads_directly() {
 /// came before the cut.
 #[test]
 fn a_damaged_ulog_is_read_as_far_as_it_goes_or_refused() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data/px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg");
+    let path = some_or_skip!(crate::shared_data::shared_data(
+        GPS_ULOG,
+        "a_damaged_ulog_is_read_as_far_as_it_goes_or_refused"
+    ));
     let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{e}"));
     let whole = read_ulog_with_progress(&path, &mut |_, _| {})
         .unwrap_or_else(|e| panic!("{e}"))
@@ -824,15 +845,18 @@ fn streamed_samples(path: &Path) -> (Vec<Sample>, UlogSamples) {
 /// samples on a second pass (a replay surveys, then fuses).
 #[test]
 fn a_streamed_ulog_gives_the_samples_it_gives_read_whole() {
-    let real = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data/px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg");
+    // The real log when it is there (the simulated one always).
+    let real = crate::shared_data::shared_data(
+        GPS_ULOG,
+        "a_streamed_ulog_gives_the_samples_it_gives_read_whole (its real-log half)",
+    );
     let dir = TempDir::new("streamed");
     let simulated = dir.0.join("sim.ulg");
     let streams = crate::sim::sensors::with_imu_rate(crate::sim::sensors::DEMO_STREAMS, 1000.0);
     let events = crate::sim::Simulator::new(&streams, 3, 20.0);
     let file = File::create(&simulated).unwrap_or_else(|e| panic!("{e}"));
     crate::sim::ulog::write_flight(events, file).unwrap_or_else(|e| panic!("{e}"));
-    for path in [real, simulated] {
+    for path in real.iter().cloned().chain([simulated]) {
         let whole =
             read_ulog_with_progress(&path, &mut |_, _| {}).unwrap_or_else(|e| panic!("{e}"));
         let (samples, log) = streamed_samples(&path);
@@ -876,11 +900,8 @@ fn a_streamed_ulog_gives_the_samples_it_gives_read_whole() {
         );
     }
     // The real log's attitude got its rates from vehicle_angular_velocity.
-    let (samples, _) = streamed_samples(
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../tests/data/px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg")
-            .as_path(),
-    );
+    let Some(real) = real else { return };
+    let (samples, _) = streamed_samples(&real);
     assert!(samples
         .iter()
         .any(|s| matches!(&s.data, SensorData::Attitude(a) if a.rates.is_some())));
@@ -941,7 +962,8 @@ fn a_ulog_topic_keeps_the_fields_its_mapper_reads() {
 #[ignore = "timing; run with --ignored --nocapture"]
 fn time_real_read() {
     let t0 = std::time::Instant::now();
-    let log = read_dir(Path::new(DATA_DIR)).unwrap_or_else(|e| panic!("{e}"));
+    let data = some_or_skip!(data_dir("time_real_read"));
+    let log = read_dir(&data).unwrap_or_else(|e| panic!("{e}"));
     let dt = t0.elapsed();
     println!("read {} samples in {dt:?}", log.samples.len());
     for t in &log.topics {
