@@ -176,6 +176,26 @@ fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
     println!("consistency against the VIO: {c:?}");
     assert_eq!(c.beyond_5_sigma, 0, "{c:?}");
     assert!(c.within_3_sigma.iter().all(|f| *f >= 0.97), "{c:?}");
+    // With the autopilot's barometer (vehicle_air_data) as well: as consistent, the
+    // height too (the barometer wanders a metre in minutes indoors), and as close.
+    let baro = tmp("px4-baro");
+    let fuse: &[&str] = &["flow", "range", "attitude", "baro"];
+    let sb = replay(
+        "px4-flow-vio-7c824ee5",
+        &log.samples,
+        Some(fuse),
+        "vio",
+        &baro,
+    );
+    let cb = sb.consistency.clone().expect("consistency measured");
+    let fb = sb
+        .fused_and_best_source()
+        .0
+        .expect("fused score with the barometer");
+    println!("with the barometer: fused {fb:.3} m; {cb:?}");
+    assert_eq!(cb.beyond_5_sigma, 0, "{cb:?}");
+    assert!(cb.within_3_sigma.iter().all(|f| *f >= 0.97), "{cb:?}");
+    assert!(fb < e_se3.0, "with the barometer {fb} vs EKF2 {:?}", e_se3);
     assert!(a.join("vio.tum").exists() && a.join("ekf2.tum").exists());
 }
 
@@ -289,6 +309,17 @@ fn a_sonar_out_of_range_never_leaves_a_valid_height_running_away() {
         );
         assert!(!b.kept() && b.worst_axis == 2, "{name}: {b:?}");
     }
+    // Nothing measures the height at 12 m without a barometer: invalid nearly all the
+    // flight (honest). With the autopilot's barometer the height is held, the flow is
+    // scaled by it, and the vehicle stays valid for much of the hover, as consistent.
+    let (_out, s) = run_named("sonar-climb");
+    let without = s.availability.airborne_valid_fraction.expect("airborne");
+    let (_out, s) = run_named("sonar-climb-baro");
+    let with = s.availability.airborne_valid_fraction.expect("airborne");
+    let c = s.consistency.clone().expect("consistency");
+    println!("airborne valid: without a barometer {without:.3}, with {with:.3}; {c:?}");
+    assert!(without < 0.1 && with > 0.4, "{without} {with}");
+    assert!(c.kept(), "{c:?}");
 }
 
 /// Issue 33's second flight in kind: a 9.5 Hz flow reading 5 % off, 4 m/s laps

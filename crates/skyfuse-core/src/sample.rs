@@ -56,6 +56,8 @@ pub enum SensorData {
     /// actuator_armed, vehicle_land_detected): tells the estimator the vehicle is on the
     /// ground when nothing else aids it.
     VehicleState(VehicleState),
+    /// A barometer: static pressure, a height with a slowly wandering offset.
+    Baro(Baro),
 }
 
 /// The sensor kinds, as named in config and the status API.
@@ -72,6 +74,7 @@ pub enum SensorKind {
     Odometry,
     AutopilotEstimate,
     VehicleState,
+    Baro,
 }
 
 impl SensorData {
@@ -85,6 +88,7 @@ impl SensorData {
             SensorData::Odometry(_) => SensorKind::Odometry,
             SensorData::AutopilotEstimate(_) => SensorKind::AutopilotEstimate,
             SensorData::VehicleState(_) => SensorKind::VehicleState,
+            SensorData::Baro(_) => SensorKind::Baro,
         }
     }
 }
@@ -161,6 +165,19 @@ impl SensorData {
                 m.local_position.iter().flat_map(|v| v.iter()),
             ),
             SensorData::VehicleState(_) => Ok(()),
+            SensorData::Baro(m) => {
+                f("pressure", m.pressure_pa)?;
+                if !(BARO_MIN_PA..=BARO_MAX_PA).contains(&m.pressure_pa) {
+                    return Err(format!(
+                        "pressure {} Pa is not an air pressure on Earth ({BARO_MIN_PA}-{BARO_MAX_PA} Pa): wrong units?",
+                        m.pressure_pa
+                    ));
+                }
+                if let Some(t) = m.temperature_c {
+                    f("temperature", t)?;
+                }
+                Ok(())
+            }
         }
     }
 }
@@ -176,6 +193,7 @@ impl SensorKind {
             SensorKind::Odometry => "odometry",
             SensorKind::AutopilotEstimate => "autopilot_estimate",
             SensorKind::VehicleState => "vehicle_state",
+            SensorKind::Baro => "baro",
         }
     }
 }
@@ -183,6 +201,30 @@ impl SensorKind {
 impl std::fmt::Display for SensorKind {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.as_str())
+    }
+}
+
+/// Lowest and highest static pressure a barometer on a vehicle reads, Pa (about 18 km
+/// up; a deep mine): outside, the units are wrong (hPa sent as Pa, or the reverse).
+pub const BARO_MIN_PA: f64 = 7_000.0;
+pub const BARO_MAX_PA: f64 = 120_000.0;
+
+/// A barometer reading.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Baro {
+    /// Static pressure, Pa.
+    pub pressure_pa: f64,
+    /// The sensor's temperature, °C, where reported.
+    pub temperature_c: Option<f64>,
+    /// Variance of the pressure, Pa², where reported (ROS FluidPressure).
+    pub variance: Option<f64>,
+}
+
+impl Baro {
+    /// Pressure altitude, m (ISA troposphere: 288.15 K, 6.5 K/km, 101 325 Pa), as PX4
+    /// and ArduPilot compute it; only its changes matter to the estimator.
+    pub fn altitude_m(&self) -> f64 {
+        44_330.769 * (1.0 - (self.pressure_pa / 101_325.0).powf(0.190_263))
     }
 }
 

@@ -60,6 +60,13 @@ enum JsonSample {
         #[serde(default)]
         frame_id: String,
     },
+    /// A barometer: static pressure in Pa (not hPa).
+    Baro {
+        stamp_us: Option<i64>,
+        pressure_pa: f64,
+        temperature_c: Option<f64>,
+        variance: Option<f64>,
+    },
     /// The autopilot's view of the vehicle; either field may be left out.
     VehicleState {
         stamp_us: Option<i64>,
@@ -94,6 +101,29 @@ pub fn decode(payload: &[u8]) -> Result<Decoded, DecodeError> {
     let s: JsonSample =
         serde_json::from_slice(payload).map_err(|e| DecodeError::Json(e.to_string()))?;
     let (stamp_us, data) = match s {
+        JsonSample::Baro {
+            stamp_us,
+            pressure_pa,
+            temperature_c,
+            variance,
+        } => {
+            finite("pressure_pa", pressure_pa)?;
+            in_range(
+                "pressure_pa",
+                pressure_pa,
+                crate::sample::BARO_MIN_PA,
+                crate::sample::BARO_MAX_PA,
+                "an air pressure in Pa (hPa times 100)",
+            )?;
+            (
+                stamp_us,
+                SensorData::Baro(crate::sample::Baro {
+                    pressure_pa,
+                    temperature_c: temperature_c.filter(|t| t.is_finite()),
+                    variance: variance.filter(|v| v.is_finite() && *v > 0.0),
+                }),
+            )
+        }
         JsonSample::VehicleState {
             stamp_us,
             armed,
@@ -329,6 +359,10 @@ pub fn encode(stamp_us: i64, data: &SensorData) -> Result<String, EncodeError> {
         SensorData::VehicleState(v) => json!({
             "kind": "vehicle_state", "stamp_us": stamp_us,
             "armed": v.armed, "landed": v.landed,
+        }),
+        SensorData::Baro(b) => json!({
+            "kind": "baro", "stamp_us": stamp_us,
+            "pressure_pa": b.pressure_pa, "temperature_c": b.temperature_c, "variance": b.variance,
         }),
         SensorData::AutopilotEstimate(_) => {
             return Err(EncodeError::Unsupported(

@@ -112,6 +112,7 @@ pub const DEFAULT_LATENCY_MS_ODOMETRY: f64 = 6.0;
 pub const DEFAULT_LATENCY_MS_FLOW: f64 = 10.0;
 pub const DEFAULT_LATENCY_MS_RANGE: f64 = 10.0;
 pub const DEFAULT_LATENCY_MS_GNSS: f64 = 100.0;
+pub const DEFAULT_LATENCY_MS_BARO: f64 = 10.0;
 
 /// GNSS: user equivalent range error used with HDOP when no covariance is sent, m.
 pub const DEFAULT_GNSS_UERE_M: f64 = 2.5;
@@ -157,6 +158,12 @@ pub const DEFAULT_FLOW_GYRO_CLAMP: f64 = 4.0;
 pub const DEFAULT_FLOW_SCALE: f64 = 1.0;
 /// Flow: smallest height at which flow is used, m (lens out of focus below).
 pub const DEFAULT_FLOW_MIN_HEIGHT_M: f64 = 0.1;
+/// Barometer height noise 1σ, m (pressure noise, gusts on the static port; EKF3's
+/// EK3_ALT_M_NSE; EKF2's EKF2_BARO_NOISE is 3.5 m). The real PX4 flight's barometer
+/// wanders about a metre in minutes indoors: tighter values break "valid" there.
+pub const DEFAULT_BARO_NOISE: f64 = 2.0;
+/// Random walk of a barometer's offset, m/√s (weather, temperature, downwash).
+pub const DEFAULT_BARO_DRIFT_RW: f64 = 0.1;
 /// Flow ToF range limits when the sample gives none, m.
 pub const DEFAULT_TOF_MIN_M: f64 = 0.05;
 pub const DEFAULT_TOF_MAX_M: f64 = 8.0;
@@ -327,6 +334,8 @@ pub struct EstimatorConfig {
     pub flow_heading_std: f64,
     pub flow_heading_rw: f64,
     pub range_noise: f64,
+    pub baro_noise: f64,
+    pub baro_drift_rw: f64,
     pub range_max_tilt_rad: f64,
     pub range_quality_hold_ms: f64,
     pub terrain_rw: f64,
@@ -404,6 +413,8 @@ impl Default for EstimatorConfig {
             flow_heading_std: DEFAULT_FLOW_HEADING_STD,
             flow_heading_rw: DEFAULT_FLOW_HEADING_RW,
             range_noise: DEFAULT_RANGE_NOISE,
+            baro_noise: DEFAULT_BARO_NOISE,
+            baro_drift_rw: DEFAULT_BARO_DRIFT_RW,
             range_max_tilt_rad: DEFAULT_RANGE_MAX_TILT_RAD,
             range_quality_hold_ms: DEFAULT_RANGE_QUALITY_HOLD_MS,
             terrain_rw: DEFAULT_TERRAIN_RW,
@@ -441,6 +452,7 @@ impl EstimatorConfig {
                 SensorKind::Flow => DEFAULT_LATENCY_MS_FLOW,
                 SensorKind::Range => DEFAULT_LATENCY_MS_RANGE,
                 SensorKind::Gnss => DEFAULT_LATENCY_MS_GNSS,
+                SensorKind::Baro => DEFAULT_LATENCY_MS_BARO,
                 SensorKind::AutopilotEstimate | SensorKind::VehicleState => 0.0,
             });
         if ms.is_finite() {
@@ -464,6 +476,7 @@ impl EstimatorConfig {
             ("ground_vel_noise", self.ground_vel_noise),
             ("fake_pos_noise", self.fake_pos_noise),
             ("max_pos_std_m", self.max_pos_std_m),
+            ("baro_noise", self.baro_noise),
             ("wrls_period_ms", self.wrls_period_ms),
             ("monitor_time_s", self.monitor_time_s),
         ];

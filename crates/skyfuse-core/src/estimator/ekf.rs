@@ -73,8 +73,7 @@ pub struct Ekf {
     /// Terrain height random walk, m/√s.
     pub terrain_rw: f64,
     /// How much the terrain may rise or fall per metre travelled (EKF2_TERR_GRAD): its
-    /// uncertainty grows with the horizontal speed, and with the speed's own
-    /// uncertainty (a vehicle moved unaided, carried or flown, went somewhere unknown).
+    /// uncertainty grows with the horizontal speed.
     pub terrain_gradient: f64,
     /// GNSS slow error: stationary 1σ per axis (m) and correlation time (s).
     pub gnss_bias_std: Vector3<f64>,
@@ -203,12 +202,9 @@ impl Ekf {
             next[(IDX_V + i, IDX_V + i)] += q * dt * dt;
             next[(IDX_BA + i, IDX_BA + i)] += bias_rw * bias_rw * dt;
         }
-        // Speed over the ground and its 1σ, before this step (the terrain's noise is not
-        // worth an exact bookkeeping of the step).
-        let speed = self.x[IDX_V].hypot(self.x[IDX_V + 1])
-            + (next[(IDX_V, IDX_V)] + next[(IDX_V + 1, IDX_V + 1)])
-                .max(0.0)
-                .sqrt();
+        // Speed over the ground (EKF2's terrain process noise; a move nobody saw, a carry,
+        // is accounted for when the vehicle is set down: see `add_terrain_uncertainty`).
+        let speed = self.x[IDX_V].hypot(self.x[IDX_V + 1]);
         let terrain_q = self.terrain_rw.powi(2) + (self.terrain_gradient * speed).powi(2);
         next[(IDX_TERRAIN, IDX_TERRAIN)] += terrain_q * dt;
         for i in 0..3 {
@@ -518,6 +514,14 @@ impl Ekf {
         }
         self.p[(IDX_TERRAIN, IDX_TERRAIN)] = var;
         self.symmetrise();
+    }
+
+    /// The terrain under the vehicle is less known by `var` (m²): it moved by an amount
+    /// nobody measured.
+    pub fn add_terrain_uncertainty(&mut self, var: f64) {
+        if var.is_finite() && var > 0.0 {
+            self.p[(IDX_TERRAIN, IDX_TERRAIN)] += var;
+        }
     }
 
     /// Height of the vehicle above the terrain state, m: what a downward range finder

@@ -156,8 +156,10 @@ const IN_FLIGHT_VZ_STD: f64 = 2.0;
 /// How fast the vehicle may have moved vertically since a range reading was taken,
 /// m/s: a reading's age times this is part of its error as the flow's height.
 const HEIGHT_AGE_SPEED: f64 = 1.0;
-/// The fused height scales the flow only while its 1σ is below this, m.
+/// The fused height scales the flow only while its 1σ is below this, m, or this
+/// fraction of the height (the flow's noise carries the height's error as well).
 const FUSED_HEIGHT_MAX_STD: f64 = 0.5;
+const FUSED_HEIGHT_MAX_FRACTION: f64 = 0.2;
 
 /// Height along the body's down axis for the flow and its variance: own ToF, else a
 /// range finder (its age adding to its error), else the fused height above the terrain
@@ -194,8 +196,9 @@ fn flow_height(
     let ct = cos_tilt(&core.att.q);
     let (z, tz) = (2, super::ekf::IDX_TERRAIN);
     let var = (ekf.p[(z, z)] + ekf.p[(tz, tz)] - 2.0 * ekf.p[(z, tz)]).max(0.0);
-    (var < FUSED_HEIGHT_MAX_STD.powi(2) && ct > 0.3)
-        .then(|| (ekf.height_above_terrain() / ct, var / (ct * ct)))
+    let h = ekf.height_above_terrain();
+    let max_std = FUSED_HEIGHT_MAX_STD.max(FUSED_HEIGHT_MAX_FRACTION * h);
+    (var < max_std * max_std && ct > 0.3 && h > 0.0).then(|| (h / ct, var / (ct * ct)))
 }
 
 pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow) {

@@ -377,6 +377,17 @@ fn transition(core: &mut Core, t: i64, to: Option<Constraint>) {
             // Set down after moving unaided (carried, or in the air): it stands where
             // the estimate has it now, as uncertain as that is, not where it was.
             let set_down = from == Some(Constraint::FakePosition) && c == Constraint::OnGround;
+            if set_down {
+                // How far it went unseen is as uncertain as its position became since the
+                // hold began; the ground may differ by the gradient over that.
+                let before = core.ground.hold_var;
+                if let Some(ekf) = core.ekf.as_mut() {
+                    let now = ekf.cov3(IDX_P).diagonal();
+                    let moved = (now.x - before.x).max(0.0) + (now.y - before.y).max(0.0);
+                    let g = ekf.terrain_gradient;
+                    ekf.add_terrain_uncertainty(g * g * moved);
+                }
+            }
             if core.ground.hold.is_none() || set_down {
                 core.ground.hold = pos;
                 core.ground.hold_var = core

@@ -4,7 +4,7 @@
 //! Layout (PX4 ekf2 style, one file per aiding source with the same verbs: `checks`,
 //! control (start/continue conditions inside `process`), fuse):
 //! [`imu`] (prediction input, gyro bias), [`attitude`] (autopilot attitude or own
-//! complementary filter), [`gnss`], [`odometry`], [`flow`], [`range`], `ground` (on the
+//! complementary filter), [`gnss`], [`odometry`], [`flow`], [`range`], `baro`, `ground` (on the
 //! ground / unaided constraints), [`ekf`] (the maths), [`wrls`] (seed 002's weighted
 //! least squares), [`monitor`] (divergence monitors), [`timing`] (clock mapping),
 //! [`config`]. `state` holds the filter state they all act on (`Core`) and the verbs
@@ -33,6 +33,7 @@
 //! 3; WRLS treats its sources as independent and is over-confident), hence the default.
 
 pub mod attitude;
+mod baro;
 pub mod config;
 pub mod ekf;
 mod flow;
@@ -75,6 +76,7 @@ pub fn rank(k: SensorKind) -> u8 {
         SensorKind::Imu => 0,
         SensorKind::Attitude => 1,
         SensorKind::Range => 2,
+        SensorKind::Baro => 2,
         SensorKind::Flow => 3,
         SensorKind::Odometry => 4,
         SensorKind::Gnss => 5,

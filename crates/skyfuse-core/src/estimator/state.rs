@@ -53,6 +53,8 @@ pub(crate) struct Core {
     pub flow_cal: FlowCalibrator,
     /// Latest range per source: (time, slant distance).
     pub range: SourceMap<(i64, f64)>,
+    /// Per barometer, its datum.
+    pub baro: SourceMap<super::baro::BaroState>,
     /// Per range source, the last reading its sensor flagged invalid or that was at or
     /// beyond its maximum (the quality hysteresis counts from it).
     pub range_bad: SourceMap<i64>,
@@ -81,7 +83,7 @@ pub(crate) struct Core {
     pub wrls_period_s: f64,
 }
 
-pub(super) const AIDING: [&str; 4] = ["gnss", "odometry", "flow", "range"];
+pub(super) const AIDING: [&str; 5] = ["gnss", "odometry", "flow", "range", "baro"];
 /// The aiding sources that hold the horizontal position or velocity.
 pub(super) const HORIZONTAL_AIDING: [&str; 3] = ["gnss", "odometry", "flow"];
 
@@ -606,10 +608,15 @@ impl Core {
             .and_then(|l| l.accel.map(|a| (a, l.accel_var)));
         let bias_rw = cfg.accel_bias_rw;
         let drift = |s: &str| {
+            // A barometer's offset block is named `baro:<source>`.
+            let (id, default) = match s.strip_prefix("baro:") {
+                Some(id) => (id, cfg.baro_drift_rw),
+                None => (s, cfg.vo_drift_rw),
+            };
             cfg.sources
-                .get(s)
+                .get(id)
                 .and_then(|c| c.drift_rw)
-                .unwrap_or(cfg.vo_drift_rw)
+                .unwrap_or(default)
         };
         let imu_drives = held.is_some() && self.att.known();
         let (f_body, var) = match held {
@@ -661,6 +668,7 @@ impl Core {
             SensorData::Range(r) => range::process(self, ctx, t, source, r),
             SensorData::Odometry(o) => odometry::process(self, ctx, t, source, o),
             SensorData::VehicleState(v) => ground::process_vehicle_state(self, t, source, v),
+            SensorData::Baro(b) => super::baro::process(self, ctx, t, source, b),
             SensorData::AutopilotEstimate(_) => {}
         }
         if let Some(st) = self.stats.get_mut(source) {

@@ -155,6 +155,7 @@ pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> TlogLog {
                         SensorKind::Odometry => "odometry",
                         SensorKind::AutopilotEstimate => "autopilot",
                         SensorKind::VehicleState => "vehicle_state",
+                        SensorKind::Baro => "baro",
                     };
                     // A simulator's truth is named for what it is.
                     if name == "SIM_STATE" {

@@ -71,6 +71,14 @@ fn flow_vehicle(flow_hz: f64, range_hz: f64, attitude_hz: f64, imu: bool) -> Vec
     streams
 }
 
+/// An autopilot's barometer as SCALED_PRESSURE streams it.
+const BARO_STREAM: StreamSpec = StreamSpec {
+    input_id: "baro",
+    kind: SensorKind::Baro,
+    rate_hz: 20.0,
+    delay_s: 0.01,
+};
+
 /// A PX4Flow's own sonar: 0.3-3.7 m, echoes now and then beyond it.
 fn px4flow_sonar(flow_hz: f64) -> Hardware {
     Hardware {
@@ -183,6 +191,10 @@ pub const NAMES: &[(&str, &str)] = &[
         "sonar-climb with the IMU as well",
     ),
     (
+        "sonar-climb-baro",
+        "sonar-climb with the autopilot's barometer: the height held where the sonar ends",
+    ),
+    (
         "flow-laps",
         "290 s of 4 m/s laps outdoors at 3 m: a 9.5 Hz PX4Flow reading 5 % fast, a range finder to 4.3 m, attitude at 57 Hz; no IMU, no GNSS",
     ),
@@ -197,7 +209,7 @@ pub fn scenario(name: &str) -> Option<Scenario> {
     let (name, description) = NAMES.iter().find(|(n, _)| *n == name).copied()?;
     let all = DEMO_STREAMS.to_vec();
     let hardware = match name {
-        "sonar-climb" | "sonar-climb-imu" => px4flow_sonar(20.0),
+        "sonar-climb" | "sonar-climb-imu" | "sonar-climb-baro" => px4flow_sonar(20.0),
         "flow-laps" => slow_flow_outdoors(1.05),
         "flow-laps-imu" => slow_flow_outdoors(0.95),
         _ => Hardware::default(),
@@ -213,6 +225,11 @@ pub fn scenario(name: &str) -> Option<Scenario> {
             flow_vehicle(20.0, 10.0, 50.0, true),
             vec![],
         ),
+        "sonar-climb-baro" => {
+            let mut streams = flow_vehicle(20.0, 10.0, 50.0, false);
+            streams.push(BARO_STREAM);
+            (Profile::HighHover, streams, vec![])
+        }
         "flow-laps" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, false), vec![]),
         "flow-laps-imu" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, true), vec![]),
         "demo" => (Profile::Demo, all, vec![]),

@@ -95,6 +95,9 @@ const TOF_MAX: f64 = 8.0;
 const RANGE_NOISE: f64 = 0.02;
 const RANGE_MIN: f64 = 0.2;
 const RANGE_MAX: f64 = 12.0;
+const BARO_NOISE: f64 = 0.1;
+/// Barometer slow error random walk, m/√s.
+const BARO_DRIFT_RW: f64 = 0.01;
 const GPS_H_NOISE: f64 = 0.35;
 const GPS_V_NOISE: f64 = 0.7;
 /// GPS slow error (multipath, atmosphere) random walk, m/√s.
@@ -159,6 +162,9 @@ pub struct SensorModels {
     last_fix: (f64, f64, f64),
     profile: Profile,
     pub hardware: Hardware,
+    /// The barometer's slow error (weather, temperature), m, and when it was last read.
+    baro_bias: f64,
+    baro_last_t: Option<f64>,
 }
 
 fn n(rng: &mut SmallRng, sigma: f64) -> f64 {
@@ -194,6 +200,8 @@ impl SensorModels {
             last_fix: (HOME_LAT, HOME_LON, HOME_ALT),
             profile,
             hardware: Hardware::default(),
+            baro_bias: 0.0,
+            baro_last_t: None,
         }
     }
 
@@ -221,6 +229,7 @@ impl SensorModels {
             SensorKind::Flow => SensorData::Flow(self.flow(s)),
             SensorKind::Range => SensorData::Range(self.range(s)),
             SensorKind::Gnss => SensorData::Gnss(self.gps(s)),
+            SensorKind::Baro => SensorData::Baro(self.baro(s)),
             // The autopilot's land detector: on the ground below 5 cm.
             SensorKind::VehicleState => SensorData::VehicleState(VehicleState {
                 armed: None,
@@ -395,6 +404,22 @@ impl SensorModels {
             signal_quality: Some(quality),
             variance: None,
             orientation: Some(25),
+        }
+    }
+
+    /// A barometer: pressure of the true altitude plus a slow random walk and noise
+    /// (a BMP388-class sensor: about 0.1 m of noise).
+    pub fn baro(&mut self, s: &TruthState) -> Baro {
+        if let Some(last) = self.baro_last_t {
+            let dt = (s.t - last).max(0.0);
+            self.baro_bias += n(&mut self.rng, BARO_DRIFT_RW * dt.sqrt());
+        }
+        self.baro_last_t = Some(s.t);
+        let h = HOME_ALT + s.position.z + self.baro_bias + n(&mut self.rng, BARO_NOISE);
+        Baro {
+            pressure_pa: 101_325.0 * (1.0 - h / 44_330.769).powf(1.0 / 0.190_263),
+            temperature_c: Some(25.0),
+            variance: None,
         }
     }
 

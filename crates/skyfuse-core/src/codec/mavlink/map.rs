@@ -43,10 +43,13 @@ pub(super) enum SensorMsg {
     Heartbeat,
     ExtendedSysState,
     SimState,
+    ScaledPressure,
+    ScaledPressure2,
+    ScaledPressure3,
 }
 
 impl SensorMsg {
-    pub const ALL: [SensorMsg; 15] = [
+    pub const ALL: [SensorMsg; 18] = [
         SensorMsg::HighresImu,
         SensorMsg::ScaledImu,
         SensorMsg::RawImu,
@@ -62,6 +65,9 @@ impl SensorMsg {
         SensorMsg::Heartbeat,
         SensorMsg::ExtendedSysState,
         SensorMsg::SimState,
+        SensorMsg::ScaledPressure,
+        SensorMsg::ScaledPressure2,
+        SensorMsg::ScaledPressure3,
     ];
 
     /// (name, id) from rust-mavlink's definitions, so no number is typed twice.
@@ -85,6 +91,9 @@ impl SensorMsg {
             SensorMsg::Heartbeat => m::<common::HEARTBEAT_DATA>(),
             SensorMsg::ExtendedSysState => m::<common::EXTENDED_SYS_STATE_DATA>(),
             SensorMsg::SimState => m::<common::SIM_STATE_DATA>(),
+            SensorMsg::ScaledPressure => m::<common::SCALED_PRESSURE_DATA>(),
+            SensorMsg::ScaledPressure2 => m::<common::SCALED_PRESSURE2_DATA>(),
+            SensorMsg::ScaledPressure3 => m::<common::SCALED_PRESSURE3_DATA>(),
         }
     }
 
@@ -130,7 +139,32 @@ pub(super) fn decode(sensor: SensorMsg, f: &Fields) -> Result<Mapped, DecodeErro
         SensorMsg::Heartbeat => heartbeat(f),
         SensorMsg::ExtendedSysState => extended_sys_state(f),
         SensorMsg::SimState => sim_state(f),
+        SensorMsg::ScaledPressure | SensorMsg::ScaledPressure2 | SensorMsg::ScaledPressure3 => {
+            scaled_pressure(f)
+        }
     }
+}
+
+/// SCALED_PRESSURE(2/3) → a barometer: `press_abs` hPa, `temperature` cdegC.
+fn scaled_pressure(f: &Fields) -> Result<Mapped, DecodeError> {
+    let stamp = boot_ms(f)?;
+    let hpa = crate::codec::error::in_range(
+        "press_abs",
+        f.f32("press_abs")?,
+        crate::sample::BARO_MIN_PA / 100.0,
+        crate::sample::BARO_MAX_PA / 100.0,
+        "not an air pressure in hPa",
+    )?;
+    let pressure_pa = hpa * 100.0;
+    let temperature_c = f.int("temperature", i16::MIN.into(), i16::MAX.into())? as f64 / 100.0;
+    Ok(Some((
+        stamp,
+        SensorData::Baro(crate::sample::Baro {
+            pressure_pa,
+            temperature_c: Some(temperature_c),
+            variance: None,
+        }),
+    )))
 }
 
 /// HEARTBEAT of an autopilot → armed. Heartbeats of anything else on the link (ground

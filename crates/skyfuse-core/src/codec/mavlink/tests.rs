@@ -832,6 +832,14 @@ fn samples() -> Vec<(i64, SensorData)> {
             })),
         ),
         (
+            7_000_000,
+            SensorData::Baro(crate::sample::Baro {
+                pressure_pa: 95_461.25,
+                temperature_c: Some(31.5),
+                variance: None,
+            }),
+        ),
+        (
             6_000_000,
             SensorData::AutopilotEstimate(AutopilotEstimate {
                 local_position: Some(v3(1.0, 2.0, 3.0)),
@@ -841,6 +849,37 @@ fn samples() -> Vec<(i64, SensorData)> {
             }),
         ),
     ]
+}
+
+/// SCALED_PRESSURE in hPa: a value in Pa (a sender's unit slip) is refused, naming the
+/// field; SCALED_PRESSURE2 and 3 decode alike.
+#[test]
+fn scaled_pressure_decodes_in_hectopascal_and_refuses_pascal() {
+    let header = MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: 0,
+    };
+    let ok = MavMessage::SCALED_PRESSURE2(mc::SCALED_PRESSURE2_DATA {
+        time_boot_ms: 1234,
+        press_abs: 1001.5,
+        temperature: 2150,
+        ..Default::default()
+    });
+    let d = raw_one(&encode_raw_v2(header, &ok).unwrap()).unwrap();
+    assert_eq!(d.stamp_us, Some(1_234_000));
+    let SensorData::Baro(b) = d.data else {
+        panic!("{:?}", d.data)
+    };
+    assert!((b.pressure_pa - 100_150.0).abs() < 0.01);
+    assert_eq!(b.temperature_c, Some(21.5));
+    let pascal = MavMessage::SCALED_PRESSURE(mc::SCALED_PRESSURE_DATA {
+        time_boot_ms: 1234,
+        press_abs: 100_150.0,
+        ..Default::default()
+    });
+    let e = decode_json(encode_json(header, &pascal).unwrap().as_bytes()).unwrap_err();
+    assert!(e.to_string().contains("press_abs"), "{e}");
 }
 
 #[test]
@@ -895,6 +934,11 @@ fn samples_round_trip_through_both_wire_forms() {
                 assert_eq!(a.twist_cov, None);
                 assert_eq!(a.reset_counter, Some(7));
                 assert_eq!(a.quality, Some(-1));
+            }
+            (SensorData::Baro(a), SensorData::Baro(b)) => {
+                // hPa as f32 on the wire: a few mPa.
+                assert!((a.pressure_pa - b.pressure_pa).abs() < 0.01, "{a:?}");
+                assert_eq!(a.temperature_c, b.temperature_c);
             }
             (SensorData::AutopilotEstimate(a), SensorData::AutopilotEstimate(b)) => {
                 close3(a.local_position, b.local_position);

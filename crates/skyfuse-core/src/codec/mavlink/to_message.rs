@@ -15,7 +15,8 @@ use nalgebra::{Matrix6, Vector3};
 /// Imu → HIGHRES_IMU, Attitude → ATTITUDE_QUATERNION, Gnss → GPS_RAW_INT,
 /// Flow → OPTICAL_FLOW_RAD when it has an integration time, else OPTICAL_FLOW,
 /// Range → DISTANCE_SENSOR, Odometry → ODOMETRY (LOCAL_NED / BODY_FRD),
-/// AutopilotEstimate → LOCAL_POSITION_NED, or GLOBAL_POSITION_INT without a local position.
+/// AutopilotEstimate → LOCAL_POSITION_NED, or GLOBAL_POSITION_INT without a local position,
+/// Baro → SCALED_PRESSURE.
 pub fn sample_to_message(stamp_us: Micros, data: &SensorData) -> Result<MavMessage, EncodeError> {
     match data {
         SensorData::Imu(imu) => {
@@ -233,6 +234,15 @@ pub fn sample_to_message(stamp_us: Micros, data: &SensorData) -> Result<MavMessa
                 quality: o.quality.unwrap_or(0),
             }))
         }
+        SensorData::Baro(b) => Ok(MavMessage::SCALED_PRESSURE(common::SCALED_PRESSURE_DATA {
+            time_boot_ms: boot_ms(stamp_us)?,
+            press_abs: f32_of("baro.pressure", b.pressure_pa / 100.0)?,
+            press_diff: 0.0,
+            temperature: b
+                .temperature_c
+                .map_or(0, |t| (t * 100.0).round().clamp(-32768.0, 32767.0) as i16),
+            ..Default::default()
+        })),
         SensorData::VehicleState(v) => {
             use common::{MavAutopilot, MavLandedState, MavModeFlag, MavState, MavType};
             if let Some(l) = v.landed {

@@ -10,6 +10,7 @@
 //! | `vehicle_attitude`                              | `attitude`      | [`Attitude`]; rates from `vehicle_angular_velocity` |
 //! | `sensor_gps` / `vehicle_gps_position`           | `gps`           | [`GnssFix`] (1e-7° or 1.15's degrees) |
 //! | `distance_sensor`                               | `range`         | [`Range`] |
+//! | `vehicle_air_data`                              | `baro`          | [`Baro`] |
 //! | `vehicle_optical_flow` / `optical_flow`         | `flow`          | [`OpticalFlow`] |
 //! | `vehicle_visual_odometry`                       | `vio`           | [`Odometry`] (≤ 1.13 and ≥ 1.14 layouts) |
 //! | `vehicle_local_position`                        | `ekf2`          | [`AutopilotEstimate`] (comparison only) |
@@ -407,6 +408,7 @@ enum Kind {
     Ekf2FlowGyro,
     LandDetected,
     Armed,
+    AirData,
 }
 
 /// Topic name, source name, kind; the order is the preference when two topics would
@@ -414,7 +416,7 @@ enum Kind {
 /// order of equal stamps. Field layouts of PX4 v1.12 to v1.15 are read: where a topic
 /// changed (vehicle_gps_position → sensor_gps, optical_flow → vehicle_optical_flow,
 /// vehicle_visual_odometry's frames, sensor_gps's degrees in 1.15) both forms are.
-const TOPICS: [(&str, &str, Kind); 15] = [
+const TOPICS: [(&str, &str, Kind); 16] = [
     ("vehicle_attitude", "attitude", Kind::VehicleAttitude),
     ("estimator_states", "attitude_states", Kind::Attitude),
     ("sensor_combined", "imu", Kind::SensorCombined),
@@ -438,10 +440,11 @@ const TOPICS: [(&str, &str, Kind); 15] = [
     ),
     ("vehicle_land_detected", "land_detected", Kind::LandDetected),
     ("actuator_armed", "armed", Kind::Armed),
+    ("vehicle_air_data", "baro", Kind::AirData),
 ];
 
 /// The topics a replay wants, for the "missing" report: (what, any of these topics).
-const WANTED: [(&str, &[&str]); 7] = [
+const WANTED: [(&str, &[&str]); 8] = [
     ("IMU", &["sensor_combined", "vehicle_imu"]),
     ("attitude", &["vehicle_attitude"]),
     ("GNSS", &["sensor_gps", "vehicle_gps_position"]),
@@ -449,6 +452,7 @@ const WANTED: [(&str, &[&str]); 7] = [
     ("optical flow", &["vehicle_optical_flow", "optical_flow"]),
     ("visual odometry", &["vehicle_visual_odometry"]),
     ("land detector", &["vehicle_land_detected"]),
+    ("barometer", &["vehicle_air_data"]),
 ];
 
 /// Internal source of EKF2's flow gyro rows, attached to the flow samples and dropped.

@@ -87,6 +87,7 @@ fn real_flight_topics_and_row_counts() {
         ("optical_flow_0", ("flow", 17666, 0)),
         ("optical_flow_1", ("flow_1", 14438, 0)),
         ("vehicle_imu_0", ("vehicle_imu", 615, 0)),
+        ("vehicle_air_data_0", ("baro", 3551, 0)),
         ("vehicle_imu_1", ("vehicle_imu_1", 615, 0)),
         ("vehicle_land_detected_0", ("land_detected", 311, 0)),
         ("vehicle_local_position_0", ("ekf2", 3077, 0)),
@@ -94,7 +95,7 @@ fn real_flight_topics_and_row_counts() {
     ]);
     assert_eq!(got, want);
     let total: usize = log.topics.iter().map(TopicSummary::samples).sum();
-    assert_eq!(total, 72528 + 616 + 311 + 17683);
+    assert_eq!(total, 72528 + 616 + 311 + 17683 + 3551);
     // EKF2's flow gyro rows go into the flow samples; one `attitude` per EKF2
     // heading (vehicle_local_position rows), the stand-in for vehicle_attitude,
     // replaces the 308 EKF2 quaternions it takes its tilt from.
@@ -615,7 +616,8 @@ fn px4_1_14_and_1_15_layouts_read() {
     assert!((v - Vector3::new(0.5, 0.0, 0.0)).norm() < 1e-12, "{v}");
     assert_eq!((o.reset_counter, o.quality), (Some(4), Some(90)));
     assert!(o.angular_velocity.is_none());
-    assert_eq!(log.missing.len(), 2, "{:?}", log.missing); // range finder, land detector
+    // Range finder, land detector, barometer.
+    assert_eq!(log.missing.len(), 3, "{:?}", log.missing);
 }
 
 #[test]

@@ -17,6 +17,15 @@ pub(super) enum Mapper {
     Ekf2FlowGyro(Vec3Pair),
     LandDetected(FlagCol),
     Armed(FlagCol),
+    AirData(AirDataCols),
+}
+
+/// vehicle_air_data: the autopilot's barometer (PX4 1.12-1.15 name its temperature
+/// `baro_temp_celcius`).
+pub(super) struct AirDataCols {
+    t: usize,
+    pressure: usize,
+    temperature: usize,
 }
 
 /// A timestamp and up to two vectors (sensor_combined: gyro, accel).
@@ -166,6 +175,7 @@ impl Mapper {
             Mapper::Vio(c) => c.t,
             Mapper::Ekf2(c) => c.t,
             Mapper::LandDetected(c) | Mapper::Armed(c) => c.t,
+            Mapper::AirData(c) => c.t,
         }
     }
 
@@ -236,6 +246,11 @@ impl Mapper {
                     vdop: h.get("vdop")?,
                 })
             }
+            Kind::AirData => Mapper::AirData(AirDataCols {
+                t,
+                pressure: h.get("baro_pressure_pa")?,
+                temperature: h.get("baro_temp_celcius")?,
+            }),
             Kind::Range => Mapper::Range(RangeCols {
                 t,
                 distance: h.get("current_distance")?,
@@ -340,6 +355,7 @@ impl Mapper {
                 Ok((t, SensorData::Imu(Imu::from_rates(Some(g), None))))
             }
             Mapper::Gps(c) => gps(c, r),
+            Mapper::AirData(c) => air_data(c, r),
             Mapper::Range(c) => range(c, r),
             Mapper::Flow(c) => flow(c, r),
             Mapper::Vio(c) => vio(c, r),
@@ -497,6 +513,24 @@ fn range(c: &RangeCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError
             signal_quality,
             variance: (variance.is_finite() && variance > 0.0).then_some(variance),
             orientation: Some(r.u8(c.orientation)?),
+        }),
+    ))
+}
+
+/// vehicle_air_data → a barometer (Pa, °C).
+fn air_data(c: &AirDataCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
+    let t = r.stamp(c.t)?;
+    let pressure_pa = r.finite(c.pressure, "pressure not finite")?;
+    if !(crate::sample::BARO_MIN_PA..=crate::sample::BARO_MAX_PA).contains(&pressure_pa) {
+        return Err(r.unusable(c.pressure, "not an air pressure in Pa"));
+    }
+    let temperature = r.f64(c.temperature)?;
+    Ok((
+        t,
+        SensorData::Baro(crate::sample::Baro {
+            pressure_pa,
+            temperature_c: temperature.is_finite().then_some(temperature),
+            variance: None,
         }),
     ))
 }
