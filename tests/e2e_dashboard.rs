@@ -144,7 +144,10 @@ fn prometheus_reads_the_metrics_and_they_agree_with_the_status() {
     // Parsed by the Prometheus project's own OpenMetrics parser (tests/py/metrics_check.py)
     // and checked against /api/v1/status: every input, each sensor's health state,
     // validity, position σ, the refused controls; counters never go back; VPE flows.
-    let svc = Service::start(&["demo", "--no-browser"], &[]);
+    // VPE to a real UDP socket: with no endpoint nothing counts as sent.
+    let autopilot = std::net::UdpSocket::bind("127.0.0.1:0").expect("udp");
+    let to = format!("udpout:{}", autopilot.local_addr().expect("addr"));
+    let svc = Service::start(&["demo", "--no-browser", "--mavlink", &to], &[]);
     svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
     for _ in 0..2 {
         let (code, _) = http_post(

@@ -489,3 +489,31 @@ fn a_udp_peer_that_is_not_listening_yet_gets_vpe_once_it_is() {
     assert_eq!(out["bad_data"], 0);
     assert_eq!(before["sending"], true, "{before}");
 }
+
+/// Issue 35: `skyfuse demo` with no MAVLink endpoint must not say "sending": the status
+/// (and so the dashboard and /metrics, built from it) says why nothing is sent, and
+/// nothing is counted as sent, while the estimate is valid.
+#[test]
+fn without_an_endpoint_mavlink_says_it_is_not_sending() {
+    let svc = Service::start(&["demo", "--no-browser"], &[]);
+    let s = svc.wait_status(Duration::from_secs(20), |s| {
+        s["estimator"]["valid"] == true && s["outputs"][0]["heartbeats"].as_u64() > Some(1)
+    });
+    let mav = &s["outputs"][0];
+    assert_eq!(mav["name"], "mavlink", "{mav}");
+    assert_eq!(mav["sending"], false, "{mav}");
+    assert_eq!(mav["sent"], 0, "{mav}");
+    let why = mav["not_sending_reason"].as_str().unwrap_or_default();
+    assert!(why.contains("no MAVLink endpoint"), "{mav}");
+    let (code, text) = http_get(svc.http_port, "/metrics").expect("GET");
+    assert_eq!(code, 200);
+    assert!(
+        text.contains("skyfuse_output_sent_total{output=\"mavlink\",kind=\"mavlink\"} 0\n")
+            || text.contains("skyfuse_output_sent_total{kind=\"mavlink\",output=\"mavlink\"} 0\n"),
+        "{}",
+        text.lines()
+            .filter(|l| l.contains("output_sent"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+}

@@ -270,7 +270,7 @@ fn on_every_scenario_the_fused_track_beats_the_best_single_source_and_is_consist
 /// One loop of scenario `name`, seed 1, with estimator config `cfg`.
 fn run_named_with(name: &str, cfg: EstimatorConfig) -> (TempDir, skyfuse::offline::Summary) {
     let scn = scenario(name).expect("scenario");
-    let out = tmp(&format!("scn-{name}-cfg"));
+    let out = tmp(&format!("scn-{name}"));
     let s = run_scenario(
         &scn,
         1,
@@ -365,19 +365,7 @@ fn read_tum(path: &Path) -> Vec<(f64, [f64; 3])> {
 
 /// One loop of scenario `name`, seed 1, default config, into a scratch directory.
 fn run_named(name: &str) -> (TempDir, skyfuse::offline::Summary) {
-    let scn = scenario(name).expect("scenario");
-    let out = tmp(&format!("scn-{name}"));
-    let s = run_scenario(
-        &scn,
-        1,
-        scn.default_duration_s(),
-        EstimatorConfig::default(),
-        HealthConfig::default(),
-        &out,
-        &mut |_| {},
-    )
-    .expect("run");
-    (out, s)
+    run_named_with(name, EstimatorConfig::default())
 }
 
 #[test]

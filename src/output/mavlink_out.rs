@@ -82,10 +82,19 @@ pub struct LinkStatus {
     pub last_error: Option<String>,
 }
 
+/// Why nothing is sent when the config names nowhere to send to.
+pub const NO_ENDPOINT: &str =
+    "no MAVLink endpoint configured (`[mavlink] endpoints`, `--mavlink`, or zenoh_raw / zenoh_json)";
+
 impl MavlinkStats {
     pub fn status(&self, now: i64, rate_hz: f64) -> super::OutputStatus {
         let last = self.last_sent_us.load(Relaxed) as i64;
-        let reason = crate::sync::lock(&self.not_sending_reason).clone();
+        // Nowhere to send is said first: it is what the user has to change.
+        let reason = if self.links.is_empty() {
+            Some(NO_ENDPOINT.to_string())
+        } else {
+            crate::sync::lock(&self.not_sending_reason).clone()
+        };
         let links: Vec<LinkStatus> = self
             .links
             .iter()
@@ -575,6 +584,11 @@ impl VpeSender {
                 _ => now,
             };
             *next_due = Some(base + period_us);
+        };
+        // With no link, a pose made is not a pose sent: nothing is counted as sent.
+        let outcome = match outcome {
+            Ok(Some(_)) if stats.links.is_empty() => Ok(None),
+            other => other,
         };
         match outcome {
             Ok(Some((t, reset, msgs))) => {
