@@ -77,6 +77,10 @@ fn tum_positions(file: &Path) -> Vec<(f64, [f64; 3])> {
 /// Record the demo for `secs` with the given extra environment; returns the service
 /// (still running) after checking the recorder's status.
 fn record_demo(dir: &Path, env: &[(&str, &str)], secs: f64) -> Service {
+    // The VPE goes to a real UDP socket (with no endpoint nothing is sent, or recorded),
+    // open for the rest of the test process.
+    let (autopilot, to) = autopilot_socket();
+    std::mem::forget(autopilot);
     let svc = Service::start(
         &[
             "demo",
@@ -85,11 +89,21 @@ fn record_demo(dir: &Path, env: &[(&str, &str)], secs: f64) -> Service {
             &dir.display().to_string(),
             "--foxglove",
             "127.0.0.1:0",
+            "--mavlink",
+            &to,
         ],
         env,
     );
     std::thread::sleep(Duration::from_secs_f64(secs));
     svc
+}
+
+/// A UDP socket standing in for the autopilot, and the `--mavlink` endpoint that sends
+/// to it. Keep the socket alive while the service sends.
+fn autopilot_socket() -> (std::net::UdpSocket, String) {
+    let s = std::net::UdpSocket::bind("127.0.0.1:0").expect("udp");
+    let to = format!("udpout:{}", s.local_addr().expect("addr"));
+    (s, to)
 }
 
 #[test]
@@ -305,7 +319,18 @@ fn foxglove_client(url: &str, seconds: u32, stall: bool) -> Option<std::process:
 
 #[test]
 fn a_foxglove_client_decodes_the_live_view_and_a_stalled_one_holds_nothing_up() {
-    let svc = Service::start(&["demo", "--no-browser", "--foxglove", "127.0.0.1:0"], &[]);
+    let (_autopilot, to) = autopilot_socket();
+    let svc = Service::start(
+        &[
+            "demo",
+            "--no-browser",
+            "--foxglove",
+            "127.0.0.1:0",
+            "--mavlink",
+            &to,
+        ],
+        &[],
+    );
     let status = svc.wait_status(Duration::from_secs(10), |s| {
         s["recorder"]["foxglove"].is_string() && s["estimator"]["initialised"] == true
     });

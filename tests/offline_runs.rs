@@ -540,4 +540,33 @@ fn a_simulated_1_khz_ulog_replays_through_the_cli() {
     println!("1 kHz ULog replay vs its VIO: APE {rmse:.4} m, valid {valid:.4}");
     assert!(rmse < 0.05, "{fused}");
     assert!(valid > 0.98, "{summary}");
+    // Issue 35: a misspelt source or reference is an error that lists what the log
+    // has, not a run that fuses nothing or scores nothing with exit 0.
+    for (flag, value, says) in [
+        (
+            "--sources",
+            "flwo",
+            "--sources flwo: no such source or kind in this log; it has",
+        ),
+        (
+            "--reference",
+            "foo",
+            "--reference foo: no position source of that name",
+        ),
+    ] {
+        let run = std::process::Command::new(bin)
+            .arg("replay")
+            .arg(&log)
+            .arg("--out")
+            .arg(dir.join("typo"))
+            .args([flag, value])
+            .output()
+            .expect("replay runs");
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "{flag} {value}: exit 0");
+        assert!(
+            err.contains(says) && err.contains("vio (odometry)"),
+            "{err}"
+        );
+    }
 }

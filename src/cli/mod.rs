@@ -134,8 +134,9 @@ pub enum Command {
         /// still written for comparison.
         #[arg(long, value_delimiter = ',')]
         sources: Option<Vec<String>>,
-        /// The source the others are scored against (APE, SE(3)-aligned).
-        #[arg(long, default_value = "vio")]
+        /// The source the others are scored against (APE, SE(3)-aligned); default: the
+        /// log's camera odometry (`vio`), else the autopilot's estimate, else GNSS.
+        #[arg(long, default_value = "")]
         reference: String,
         /// Score only this window of the log, seconds from its start: `START:END`.
         #[arg(long, value_parser = parse_window)]

@@ -41,6 +41,10 @@ pub enum OfflineError {
         name: String,
         source: crate::eval::EvalError,
     },
+    #[error("--sources {unknown}: no such source or kind in this log; it has {known}")]
+    UnknownSources { unknown: String, known: String },
+    #[error("--reference {name}: no position source of that name in this log; its position sources: {known}")]
+    UnknownReference { name: String, known: String },
 }
 
 /// Accumulates the trajectories and events of one run.
@@ -847,6 +851,14 @@ impl SampleSource for Vec<Sample> {
     }
 }
 
+/// A kind whose samples make a track a replay can be scored against.
+fn is_position(k: SensorKind) -> bool {
+    matches!(
+        k,
+        SensorKind::Odometry | SensorKind::AutopilotEstimate | SensorKind::Gnss | SensorKind::Flow
+    )
+}
+
 /// Replay recorded samples (time-ordered) through the estimator. Sources not in
 /// `fuse` (when given) are not fused but still written for comparison. `reference`
 /// names the source the others are scored against (e.g. `vio`).
@@ -855,7 +867,8 @@ impl SampleSource for Vec<Sample> {
 pub struct ReplayOptions {
     /// Only these source ids are fused (all when `None`); the rest are still written.
     pub fuse: Option<Vec<String>>,
-    /// The source the others are scored against (e.g. `vio`).
+    /// The source the others are scored against (e.g. `vio`); empty: the log's best
+    /// (a camera's odometry, then the autopilot's estimate, then GNSS).
     pub reference: String,
     /// Scored span, s from the log's start.
     pub window: Option<(f64, f64)>,
@@ -876,6 +889,71 @@ pub fn run_replay(
 ) -> Result<Summary, OfflineError> {
     let window = opts.window;
     let survey = SampleSurvey::of(samples);
+    // A name that matches nothing is a typo, not a request to fuse nothing.
+    let listing = |only_positions: bool| {
+        survey
+            .sources
+            .iter()
+            .filter(|(_, e)| !only_positions || is_position(e.last_kind))
+            .map(|(id, e)| format!("{id} ({})", e.last_kind.as_str()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    if let Some(list) = &opts.fuse {
+        let unknown: Vec<&str> = list
+            .iter()
+            .filter(|l| {
+                !survey
+                    .sources
+                    .iter()
+                    .any(|(id, e)| *l == id || *l == e.last_kind.as_str())
+            })
+            .map(String::as_str)
+            .collect();
+        if !unknown.is_empty() {
+            return Err(OfflineError::UnknownSources {
+                unknown: unknown.join(","),
+                known: listing(false),
+            });
+        }
+    }
+    // No reference asked for: the log's best independent one (a camera's odometry, the
+    // autopilot's estimate, GNSS), said in the summary.
+    let reference = if opts.reference.is_empty() {
+        [
+            SensorKind::Odometry,
+            SensorKind::AutopilotEstimate,
+            SensorKind::Gnss,
+        ]
+        .iter()
+        .find_map(|k| {
+            let named = |id: &str| survey.sources.get(id).is_some_and(|e| e.last_kind == *k);
+            ["vio", "ekf2", "autopilot", "gps"]
+                .into_iter()
+                .find(|n| named(n))
+                .map(str::to_string)
+                .or_else(|| {
+                    survey
+                        .sources
+                        .iter()
+                        .find(|(_, e)| e.last_kind == *k)
+                        .map(|(id, _)| id.clone())
+                })
+        })
+        .unwrap_or_default()
+    } else {
+        let known = survey
+            .sources
+            .get(&opts.reference)
+            .is_some_and(|e| is_position(e.last_kind));
+        if !known {
+            return Err(OfflineError::UnknownReference {
+                name: opts.reference.clone(),
+                known: listing(true),
+            });
+        }
+        opts.reference.clone()
+    };
     if let Some(list) = &opts.fuse {
         // A source id (`flow_1`), or a sensor kind (`flow`: every flow sensor). The
         // autopilot's armed/landed state is not a sensor under comparison: it is used
@@ -909,7 +987,7 @@ pub fn run_replay(
     // 20 ms: the reference (30 Hz VIO) and the fused poses (50 Hz) are never closer
     // than evo's default 10 ms for every pose.
     let reference = Reference::Source {
-        name: &opts.reference,
+        name: &reference,
         max_diff_s: 0.02,
     };
     finish(&rec, reference, window, out, input)
