@@ -458,14 +458,13 @@ fn fuse_force(core: &mut Core, idx: &[usize], z: Vector3<f64>, var: f64) -> bool
 /// range finder): fused down to its own variance and no further, however often.
 fn fuse_height_force(core: &mut Core, h_meas: f64, var: f64) {
     let Some(ekf) = core.ekf.as_mut() else { return };
-    let m = Measurement::height(h_meas - ekf.height_above_terrain(), var);
+    let mut m = Measurement::height(h_meas - ekf.height_above_terrain(), var);
     // The variance of z − terrain along the measurement.
     let (z, tz) = (IDX_P + 2, super::ekf::IDX_TERRAIN);
     let p = ekf.p[(z, z)] + ekf.p[(tz, tz)] - 2.0 * ekf.p[(z, tz)];
     if p <= var * (1.0 + 1e-9) {
         return;
     }
-    let mut m = m;
     m.set_noise(0, 0, var.max(p * var / (p - var)));
     ekf.update(&m, 0.0, true);
 }
