@@ -306,6 +306,13 @@ pub(super) fn replay(
         report_px4_read(&log.topics, &log.stand_ins, &log.missing);
         log.samples
     } else {
+        // A cut ULog reads as a complete, shorter flight: say so.
+        if let Ok(Some(at)) = px4log::ulog_cut_short(path) {
+            tracing::warn!(
+                file = %path.display(),
+                "the file is cut short (not finished?): its last message, at byte {at}, is incomplete; replaying what comes before"
+            );
+        }
         // A ULog is streamed where it can be: its samples made as the replay reaches
         // them, never all in memory (an hour of a 1 kHz log is four million).
         match px4log::read_ulog_for_replay(path, &mut on_progress).map_err(|e| e.to_string())? {

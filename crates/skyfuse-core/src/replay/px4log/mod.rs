@@ -167,6 +167,37 @@ pub fn read_dir_with_progress(
     read_topics(find_topic_files(dir)?, progress)
 }
 
+/// Where a ULog file is cut short, if it is: the offset of the message its end cuts in
+/// two (a logger killed, a copy interrupted). The parser reads such a file up to there
+/// and says nothing, so a cut flight would pass for a complete, shorter one. Walks the
+/// message headers (`u16` size, `u8` type, after the 16-byte file header), buffered.
+/// A file cut exactly between two messages cannot be told from a complete one.
+pub fn ulog_cut_short(file: &Path) -> std::io::Result<Option<u64>> {
+    use std::io::{BufReader, Read};
+    let len = std::fs::metadata(file)?.len();
+    let mut r = BufReader::with_capacity(1 << 16, std::fs::File::open(file)?);
+    const FILE_HEADER: u64 = 16;
+    if len < FILE_HEADER {
+        return Ok(Some(0));
+    }
+    r.seek_relative(FILE_HEADER as i64)?;
+    let mut at = FILE_HEADER;
+    let mut header = [0u8; 3];
+    while at < len {
+        if len - at < 3 {
+            return Ok(Some(at));
+        }
+        r.read_exact(&mut header)?;
+        let size = u64::from(u16::from_le_bytes([header[0], header[1]]));
+        if at + 3 + size > len {
+            return Ok(Some(at));
+        }
+        r.seek_relative(size as i64)?;
+        at += 3 + size;
+    }
+    Ok(None)
+}
+
 /// Reads a ULog file (`.ulg`) directly; `progress` counts rows.
 pub fn read_ulog_with_progress(
     file: &Path,
