@@ -530,6 +530,12 @@ impl Ekf {
         self.x[IDX_P + 2] - self.x[IDX_TERRAIN]
     }
 
+    /// The variance of [`Self::height_above_terrain`], m².
+    pub fn height_above_terrain_var(&self) -> f64 {
+        let (z, t) = (IDX_P + 2, IDX_TERRAIN);
+        self.p[(z, z)] + self.p[(t, t)] - 2.0 * self.p[(z, t)]
+    }
+
     /// Shift the position (origin reset); the covariance is unchanged.
     pub fn shift_position(&mut self, d: Vector3<f64>) {
         let p = self.pos() + d;

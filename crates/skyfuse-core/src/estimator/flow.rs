@@ -194,8 +194,7 @@ fn flow_height(
     }
     let ekf = core.ekf.as_ref()?;
     let ct = cos_tilt(&core.att.q);
-    let (z, tz) = (2, super::ekf::IDX_TERRAIN);
-    let var = (ekf.p[(z, z)] + ekf.p[(tz, tz)] - 2.0 * ekf.p[(z, tz)]).max(0.0);
+    let var = ekf.height_above_terrain_var().max(0.0);
     let h = ekf.height_above_terrain();
     let max_std = FUSED_HEIGHT_MAX_STD.max(FUSED_HEIGHT_MAX_FRACTION * h);
     (var < max_std * max_std && ct > 0.3 && h > 0.0).then(|| (h / ct, var / (ct * ct)))

@@ -459,9 +459,7 @@ fn fuse_force(core: &mut Core, idx: &[usize], z: Vector3<f64>, var: f64) -> bool
 fn fuse_height_force(core: &mut Core, h_meas: f64, var: f64) {
     let Some(ekf) = core.ekf.as_mut() else { return };
     let mut m = Measurement::height(h_meas - ekf.height_above_terrain(), var);
-    // The variance of z − terrain along the measurement.
-    let (z, tz) = (IDX_P + 2, super::ekf::IDX_TERRAIN);
-    let p = ekf.p[(z, z)] + ekf.p[(tz, tz)] - 2.0 * ekf.p[(z, tz)];
+    let p = ekf.height_above_terrain_var();
     if p <= var * (1.0 + 1e-9) {
         return;
     }

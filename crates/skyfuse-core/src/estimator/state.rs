@@ -395,11 +395,8 @@ impl Core {
         let Some(ekf) = self.ekf.as_mut() else { return };
         // A flow source reads (1 + k)·Rz(ψ) times the body velocity: k its scale error,
         // ψ its heading error (both states of the filter).
-        let errors = (rows == 2 && (scale_var > 0.0 || heading_var > 0.0)).then(|| {
-            ekf.scale_rw = cfg.flow_scale_rw;
-            ekf.heading_rw = cfg.flow_heading_rw;
-            ekf.scale_state(source, scale_var.max(1e-12), heading_var.max(1e-12))
-        });
+        let errors = (rows == 2 && (scale_var > 0.0 || heading_var > 0.0))
+            .then(|| ekf.scale_state(source, scale_var.max(1e-12), heading_var.max(1e-12)));
         let (k, psi) = errors.map_or((0.0, 0.0), |i| (ekf.x[i], ekf.x[i + 1]));
         let rot = *self.att.q.to_rotation_matrix().matrix();
         let rt = rot.transpose();
@@ -529,6 +526,8 @@ impl Core {
             );
             ekf.terrain_rw = cfg.terrain_rw;
             ekf.terrain_gradient = cfg.terrain_gradient;
+            ekf.scale_rw = cfg.flow_scale_rw;
+            ekf.heading_rw = cfg.flow_heading_rw;
             let (b, bv) = (cfg.gnss_bias_std_m, cfg.gnss_bias_std_v_m);
             ekf.set_gnss_bias_model(Vector3::new(b, b, bv), cfg.gnss_bias_tau_s);
             if self.stats.get(source).is_some_and(|s| s.kind == "gnss")
