@@ -154,6 +154,7 @@ fn targets() -> Vec<Target> {
                     br#"{"type":"subscribe","max_rate_hz":50.0}"#.to_vec(),
                 ],
                 Decoder::Mcap => mcap_seeds(),
+                Decoder::Dataflash => dataflash_seeds(),
                 Decoder::ControlBody => vec![
                     br#"{"sensor": "gps", "fault": "stop", "duration_s": 10}"#.to_vec(),
                     br#"{"sensor":"flow","fault":"dark-floor"}"#.to_vec(),
@@ -161,6 +162,20 @@ fn targets() -> Vec<Target> {
                 ],
             };
             Target { decoder, seeds }
+        })
+        .collect()
+}
+
+/// Short simulated flights as DataFlash logs (every record type the reader maps).
+fn dataflash_seeds() -> Vec<Vec<u8>> {
+    [0.2, 1.0]
+        .into_iter()
+        .map(|seconds| {
+            let events =
+                skyfuse::sim::Simulator::new(skyfuse::sim::sensors::DEMO_STREAMS, 3, seconds);
+            let mut bytes = Vec::new();
+            skyfuse::sim::dataflash::write_flight(events, &mut bytes).expect("in memory");
+            bytes
         })
         .collect()
 }

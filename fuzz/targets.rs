@@ -24,12 +24,14 @@ pub enum Target {
     WsClient,
     /// An MCAP file given to `skyfuse replay`.
     Mcap,
+    /// An ArduPilot DataFlash log (`.bin`) given to `skyfuse replay`.
+    Dataflash,
     /// The fault-control body (`POST /api/v1/sim/fault`).
     ControlBody,
 }
 
 impl Target {
-    pub const ALL: [Target; 9] = [
+    pub const ALL: [Target; 10] = [
         Target::Ros2Cdr,
         Target::Ros1,
         Target::MavlinkJson,
@@ -38,6 +40,7 @@ impl Target {
         Target::ConfigToml,
         Target::WsClient,
         Target::Mcap,
+        Target::Dataflash,
         Target::ControlBody,
     ];
 
@@ -51,6 +54,7 @@ impl Target {
             Target::ConfigToml => "config_toml",
             Target::WsClient => "ws_client",
             Target::Mcap => "mcap",
+            Target::Dataflash => "dataflash",
             Target::ControlBody => "control_body",
         }
     }
@@ -82,6 +86,10 @@ impl Target {
                 serde_json::from_slice::<skyfuse::protocol::ClientMessage>(bytes).is_ok()
             }
             Target::Mcap => skyfuse::replay::mcap::parse(bytes, &mut |_, _| {}).is_ok(),
+            Target::Dataflash => {
+                let log = skyfuse::replay::dataflash::parse(bytes, &mut |_, _| {});
+                !log.samples.is_empty()
+            }
             Target::ControlBody => {
                 serde_json::from_slice::<skyfuse::sim::faults::FaultRequest>(bytes).is_ok()
             }

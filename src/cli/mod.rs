@@ -113,6 +113,10 @@ pub enum Command {
         /// `skyfuse replay` reads) instead of publishing; `--duration` sets its length.
         #[arg(long, value_name = "FILE", conflicts_with = "out")]
         ulog: Option<PathBuf>,
+        /// Offline: write the scenario's sensor samples as an ArduPilot DataFlash log
+        /// (`.bin`: IMU, ATT, OF, RFND, GPS, BARO, VISP records) instead of publishing.
+        #[arg(long, value_name = "FILE", conflicts_with_all = ["out", "ulog"])]
+        dataflash: Option<PathBuf>,
         /// The simulated IMU's rate, Hz (default: the scenario's, 200 Hz).
         #[arg(long, value_name = "HZ")]
         imu_hz: Option<f64>,
@@ -121,11 +125,12 @@ pub enum Command {
         list: bool,
     },
     /// Replay a recorded flight (a PX4 ULog, a directory of its CSV export by pyulog's
-    /// ulog2csv, a MAVLink telemetry log, a skyfuse recording or a rosbag2 bag in MCAP)
+    /// ulog2csv, an ArduPilot DataFlash log, a MAVLink telemetry log, a skyfuse
+    /// recording or a rosbag2 bag in MCAP)
     /// through the estimator and write TUM files, events and a summary scored on the
     /// whole log.
     Replay {
-        /// A `.ulg`, `.tlog` or `.mcap` file, or a directory of `<topic>_<instance>.csv[.gz]`
+        /// A `.ulg`, `.bin`, `.tlog` or `.mcap` file, or a directory of `<topic>_<instance>.csv[.gz]`
         /// (or a rosbag2 bag directory holding one `.mcap`).
         path: PathBuf,
         #[arg(long, value_name = "DIR")]
@@ -446,7 +451,15 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             ulog: Some(file),
             imu_hz,
             ..
-        } => sim_ulog(&scenario, seed, duration, imu_hz, &file),
+        } => sim_log(&scenario, seed, duration, imu_hz, &file, SimLog::Ulog),
+        Command::Sim {
+            seed,
+            duration,
+            scenario,
+            dataflash: Some(file),
+            imu_hz,
+            ..
+        } => sim_log(&scenario, seed, duration, imu_hz, &file, SimLog::Dataflash),
         Command::Sim {
             config,
             seed,
@@ -713,7 +726,7 @@ fn random_token() -> String {
 }
 
 mod runs;
-use runs::{offline_sims, parse_window, replay, scenario_at, sim_ulog};
+use runs::{offline_sims, parse_window, replay, scenario_at, sim_log, SimLog};
 
 #[cfg(test)]
 mod tests {

@@ -97,13 +97,24 @@ pub(super) fn scenario_at(name: &str, imu_hz: Option<f64>) -> Result<scenario::S
     Ok(scn)
 }
 
-/// `skyfuse sim --ulog FILE`: one scenario's sensor samples as a PX4 ULog.
-pub(super) fn sim_ulog(
+/// The flight-log format `skyfuse sim` writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum SimLog {
+    /// `--ulog`: PX4's ULog.
+    Ulog,
+    /// `--dataflash`: ArduPilot's DataFlash `.bin`.
+    Dataflash,
+}
+
+/// `skyfuse sim --ulog FILE` / `--dataflash FILE`: one scenario's sensor samples as a
+/// flight log.
+pub(super) fn sim_log(
     scenario_name: &str,
     seed: u64,
     duration: Option<f64>,
     imu_hz: Option<f64>,
     file: &std::path::Path,
+    format: SimLog,
 ) -> Result<(), String> {
     let scn = scenario_at(scenario_name, imu_hz)?;
     let duration = duration.unwrap_or_else(|| scn.default_duration_s());
@@ -112,13 +123,18 @@ pub(super) fn sim_ulog(
         .map_err(|e| format!("cannot create {}: {e}", file.display()))?;
     let mut bar = Progress::new("writing  ");
     let events = sim.inspect(|e| bar.update(e.measured_t / duration));
-    let summary = crate::sim::ulog::write_flight(events, std::io::BufWriter::new(out))
-        .map_err(|e| format!("writing {}: {e}", file.display()))?;
+    let out = std::io::BufWriter::new(out);
+    let written = match format {
+        SimLog::Ulog => crate::sim::ulog::write_flight(events, out).map(|s| (s.messages, s.bytes)),
+        SimLog::Dataflash => {
+            crate::sim::dataflash::write_flight(events, out).map(|s| (s.records, s.bytes))
+        }
+    };
+    let (messages, bytes) = written.map_err(|e| format!("writing {}: {e}", file.display()))?;
     println!(
-        "wrote {} ({} messages, {:.1} MB, {duration} s of scenario {scenario_name})",
+        "wrote {} ({messages} messages, {:.1} MB, {duration} s of scenario {scenario_name})",
         file.display(),
-        summary.messages,
-        summary.bytes as f64 / 1e6
+        bytes as f64 / 1e6
     );
     Ok(())
 }
@@ -247,6 +263,7 @@ pub(super) fn replay(
     let mut on_progress = |done: u64, total: u64| bar.update(done as f64 / total.max(1) as f64);
     let name = path.to_string_lossy().to_ascii_lowercase();
     let is_tlog = name.ends_with(".tlog") || name.ends_with(".tlog.gz");
+    let is_dataflash = path.is_file() && (name.ends_with(".bin") || starts_as_dataflash(path));
     let mut t0_us = None;
     let mut live_poses = Vec::new();
     let mut streamed = None;
@@ -283,6 +300,11 @@ pub(super) fn replay(
         live_poses = replay.live_poses;
         c = replay.config;
         replay.samples
+    } else if is_dataflash {
+        let log = crate::replay::dataflash::read_dataflash(path, &mut on_progress)
+            .map_err(|e| e.to_string())?;
+        report_dataflash_read(path, &log);
+        log.samples
     } else if is_tlog {
         let log =
             crate::replay::tlog::read_tlog(path, &mut on_progress).map_err(|e| e.to_string())?;
@@ -430,6 +452,48 @@ fn print_consistency(summary: &offline::Summary) {
 }
 
 /// What a PX4 log's topics gave, what stood in for absent ones, what is missing.
+/// Whether `path` begins as a DataFlash log (whatever its name).
+fn starts_as_dataflash(path: &std::path::Path) -> bool {
+    let mut head = [0u8; 3];
+    std::fs::File::open(path)
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
+        .is_ok_and(|()| crate::replay::dataflash::looks_like_dataflash(&head))
+}
+
+/// What a DataFlash log gave, and what it did not.
+fn report_dataflash_read(path: &std::path::Path, log: &crate::replay::dataflash::DataflashLog) {
+    for (m, n) in &log.messages {
+        tracing::info!(record = %m, samples = n, "read");
+    }
+    for (m, n) in &log.unusable {
+        tracing::warn!(record = %m, records = n, "not usable");
+    }
+    if let Some(why) = &log.first_unusable {
+        tracing::warn!("first unusable record: {why}");
+    }
+    let s = &log.scan;
+    if let Some(at) = s.cut_short {
+        tracing::warn!(
+            file = %path.display(),
+            "the file is cut short (not finished?): its last record, at byte {at}, is incomplete; replaying what comes before"
+        );
+    }
+    if s.bad_formats > 0 {
+        tracing::warn!(
+            refused = s.bad_formats,
+            "record formats refused; first: {}",
+            s.first_error.as_deref().unwrap_or("-")
+        );
+    }
+    if s.skipped_bytes > 0 {
+        tracing::warn!(
+            skipped_bytes = s.skipped_bytes,
+            undefined_records = s.undefined_records,
+            "bytes that are not records skipped (corruption, padding)"
+        );
+    }
+}
+
 fn report_px4_read(topics: &[px4log::TopicSummary], stand_ins: &[String], missing: &[String]) {
     for t in topics {
         match &t.first_error {

@@ -1,5 +1,7 @@
-//! Recorded flights as samples: PX4 logs (ULog, or their CSV export) and MAVLink
+//! Recorded flights as samples: PX4 logs (ULog, or their CSV export), ArduPilot
+//! DataFlash logs, skyfuse recordings and rosbag2 bags (MCAP), and MAVLink
 //! telemetry logs.
+pub mod dataflash;
 pub mod mcap;
 pub mod px4log;
 pub mod tlog;

@@ -4,6 +4,7 @@
 //! puts them on Zenoh in the real bridges' formats, so the demo exercises the same path
 //! as a vehicle.
 
+pub mod dataflash;
 pub mod faults;
 pub mod scenario;
 pub mod sensors;
