@@ -243,22 +243,43 @@ pub(super) fn offline_sims(
 }
 
 /// `skyfuse replay`.
-pub(super) fn replay(
-    c: &Config,
-    path: &std::path::Path,
-    out: &std::path::Path,
-    sources: Option<&[String]>,
-    reference: &str,
-    window: Option<(f64, f64)>,
-    fusion: Option<&str>,
-) -> Result<(), String> {
-    let mut cfg = c.estimator.clone();
-    if let Some(f) = fusion {
-        match parse_fusion(f)?.as_slice() {
-            [m] => cfg.mode = *m,
-            _ => return Err("replay takes one fusion mode".into()),
+/// A flight log loaded for replay: its samples (or a ULog streamed as the replay reaches
+/// them), the files' time zero, the poses sent live (a skyfuse recording) and the
+/// config the recording was made with.
+pub(super) struct Flight {
+    samples: Vec<crate::sample::Sample>,
+    streamed: Option<px4log::UlogSamples>,
+    t0_us: Option<i64>,
+    live_poses: Vec<(i64, [f64; 3], bool)>,
+    config: Config,
+}
+
+impl Flight {
+    pub(super) fn source(&self) -> &dyn offline::SampleSource {
+        match &self.streamed {
+            Some(log) => log,
+            None => &self.samples,
         }
     }
+
+    pub(super) fn t0_us(&self) -> Option<i64> {
+        self.t0_us
+    }
+
+    pub(super) fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// What a streamed ULog's topics gave, once the replay has read them.
+    pub(super) fn report_streamed(&self) {
+        if let Some(log) = &self.streamed {
+            report_px4_read(&log.take_topics(), &log.stand_ins(), &log.missing);
+        }
+    }
+}
+
+/// Reads the flight log at `path` (any format `skyfuse replay` takes).
+pub(super) fn load_flight(c: &Config, path: &std::path::Path) -> Result<Flight, String> {
     let mut bar = Progress::new("reading  ");
     let mut on_progress = |done: u64, total: u64| bar.update(done as f64 / total.max(1) as f64);
     let name = path.to_string_lossy().to_ascii_lowercase();
@@ -348,10 +369,34 @@ pub(super) fn replay(
             }
         }
     };
-    let source: &dyn offline::SampleSource = match &streamed {
-        Some(log) => log,
-        None => &samples,
-    };
+    Ok(Flight {
+        samples,
+        streamed,
+        t0_us,
+        live_poses,
+        config: c,
+    })
+}
+
+pub(super) fn replay(
+    c: &Config,
+    path: &std::path::Path,
+    out: &std::path::Path,
+    sources: Option<&[String]>,
+    reference: &str,
+    window: Option<(f64, f64)>,
+    fusion: Option<&str>,
+) -> Result<(), String> {
+    let mut cfg = c.estimator.clone();
+    if let Some(f) = fusion {
+        match parse_fusion(f)?.as_slice() {
+            [m] => cfg.mode = *m,
+            _ => return Err("replay takes one fusion mode".into()),
+        }
+    }
+    let flight = load_flight(c, path)?;
+    let (t0_us, live_poses, c) = (flight.t0_us, &flight.live_poses, &flight.config);
+    let source = flight.source();
     let mut bar = Progress::new("replaying");
     let opts = offline::ReplayOptions {
         fuse: sources.map(|s| s.to_vec()),
@@ -369,9 +414,7 @@ pub(super) fn replay(
         &mut |f| bar.update(f),
     )
     .map_err(|e| e.to_string())?;
-    if let Some(log) = &streamed {
-        report_px4_read(&log.take_topics(), &log.stand_ins(), &log.missing);
-    }
+    flight.report_streamed();
     println!(
         "replayed {} samples ({}) -> {}",
         summary.samples,
@@ -398,8 +441,8 @@ pub(super) fn replay(
     );
     if !live_poses.is_empty() {
         let t0 = t0_us.unwrap_or(0);
-        let (n, rms, max) = compare_with_live(&out.join("fused.tum"), &live_poses, t0)?;
-        write_live_tum(&out.join("live.tum"), &live_poses, t0)?;
+        let (n, rms, max) = compare_with_live(&out.join("fused.tum"), live_poses, t0)?;
+        write_live_tum(&out.join("live.tum"), live_poses, t0)?;
         println!(
             "against the poses sent live (live.tum, {} valid): {n} matched, position difference RMS {rms:.4} m, max {max:.4} m",
             live_poses.iter().filter(|p| p.2).count()

@@ -45,6 +45,13 @@ pub enum OfflineError {
     UnknownSources { unknown: String, known: String },
     #[error("--reference {name}: no position source of that name in this log; its position sources: {known}")]
     UnknownReference { name: String, known: String },
+    #[error("--reference {name}: none of its {samples} samples has a position ({why}); sources with positions: {known}")]
+    ReferenceWithoutPositions {
+        name: String,
+        samples: usize,
+        why: &'static str,
+        known: String,
+    },
 }
 
 /// Accumulates the trajectories and events of one run.
@@ -743,6 +750,9 @@ struct SourceSurvey {
     /// Any of its samples is the autopilot's armed/landed state.
     vehicle_state: bool,
     count: usize,
+    /// Samples that carry a position a track can be made of (an autopilot estimate
+    /// without a valid fix has none, a GNSS receiver without a fix neither).
+    positions: usize,
     first_t: i64,
     last_t: i64,
 }
@@ -787,10 +797,12 @@ impl SampleSurvey {
             last_kind: kind,
             vehicle_state: false,
             count: 0,
+            positions: 0,
             first_t: t,
             last_t: t,
         });
         e.count += 1;
+        e.positions += usize::from(has_position(&s.data));
         if earlier(t, e.first_t) {
             e.first_t = t;
             e.first_kind = kind;
@@ -851,6 +863,16 @@ impl SampleSource for Vec<Sample> {
     }
 }
 
+/// Whether a sample carries a position a reference track is made of.
+fn has_position(d: &SensorData) -> bool {
+    match d {
+        SensorData::Odometry(_) => true,
+        SensorData::AutopilotEstimate(a) => a.local_position.is_some() || a.geodetic.is_some(),
+        SensorData::Gnss(g) => g.fix != GnssFixType::NoFix,
+        _ => false,
+    }
+}
+
 /// A kind whose samples make a track a replay can be scored against.
 fn is_position(k: SensorKind) -> bool {
     matches!(
@@ -876,6 +898,61 @@ pub struct ReplayOptions {
     /// live input starts at its first arrival instead: stamps there are the sensors' own
     /// clocks (an autopilot's time since boot), arrivals the host's.
     pub t0_us: Option<i64>,
+}
+
+/// The reference a replay scores against when none is named: a simulator's truth, else
+/// the log's best independent estimate (a camera's odometry, the autopilot's estimate,
+/// GNSS), the usual name of each kind first.
+fn auto_reference(survey: &SampleSurvey) -> Option<String> {
+    if survey
+        .sources
+        .get("sim_truth")
+        .is_some_and(|e| e.positions > 0)
+    {
+        return Some("sim_truth".into());
+    }
+    [
+        SensorKind::Odometry,
+        SensorKind::AutopilotEstimate,
+        SensorKind::Gnss,
+    ]
+    .iter()
+    .find_map(|k| {
+        let usable = |e: &SourceSurvey| e.last_kind == *k && e.positions > 0;
+        let named = |id: &str| survey.sources.get(id).is_some_and(usable);
+        ["vio", "ekf2", "ekf3", "autopilot", "gps"]
+            .into_iter()
+            .find(|n| named(n))
+            .map(str::to_string)
+            .or_else(|| {
+                survey
+                    .sources
+                    .iter()
+                    .find(|(_, e)| usable(e))
+                    .map(|(id, _)| id.clone())
+            })
+    })
+}
+
+/// What a log holds, for choosing what to fuse and score: each source with its kind,
+/// and the reference a replay would choose.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LogSources {
+    pub sources: Vec<(String, SensorKind)>,
+    pub auto_reference: Option<String>,
+}
+
+/// Surveys `samples` (one pass, as [`run_replay`] does before fusing).
+pub fn log_sources(samples: &dyn SampleSource) -> LogSources {
+    let survey = SampleSurvey::of(samples);
+    LogSources {
+        sources: survey
+            .sources
+            .iter()
+            .map(|(id, e)| (id.clone(), e.last_kind))
+            .collect(),
+        auto_reference: auto_reference(&survey),
+    }
 }
 
 pub fn run_replay(
@@ -920,27 +997,7 @@ pub fn run_replay(
     // No reference asked for: the log's best independent one (a camera's odometry, the
     // autopilot's estimate, GNSS), said in the summary.
     let reference = if opts.reference.is_empty() {
-        [
-            SensorKind::Odometry,
-            SensorKind::AutopilotEstimate,
-            SensorKind::Gnss,
-        ]
-        .iter()
-        .find_map(|k| {
-            let named = |id: &str| survey.sources.get(id).is_some_and(|e| e.last_kind == *k);
-            ["vio", "ekf2", "autopilot", "gps"]
-                .into_iter()
-                .find(|n| named(n))
-                .map(str::to_string)
-                .or_else(|| {
-                    survey
-                        .sources
-                        .iter()
-                        .find(|(_, e)| e.last_kind == *k)
-                        .map(|(id, _)| id.clone())
-                })
-        })
-        .unwrap_or_default()
+        auto_reference(&survey).unwrap_or_default()
     } else {
         let known = survey
             .sources
@@ -950,6 +1007,30 @@ pub fn run_replay(
             return Err(OfflineError::UnknownReference {
                 name: opts.reference.clone(),
                 known: listing(true),
+            });
+        }
+        if let Some(e) = survey
+            .sources
+            .get(&opts.reference)
+            .filter(|e| e.positions == 0)
+        {
+            return Err(OfflineError::ReferenceWithoutPositions {
+                name: opts.reference.clone(),
+                samples: e.count,
+                why: match e.last_kind {
+                    SensorKind::AutopilotEstimate => {
+                        "the autopilot never had a valid position: only heading or velocity"
+                    }
+                    SensorKind::Gnss => "the receiver never had a fix",
+                    _ => "the kind carries none",
+                },
+                known: survey
+                    .sources
+                    .iter()
+                    .filter(|(_, e)| e.positions > 0)
+                    .map(|(id, e)| format!("{id} ({})", e.last_kind.as_str()))
+                    .collect::<Vec<_>>()
+                    .join(", "),
             });
         }
         opts.reference.clone()
@@ -991,4 +1072,76 @@ pub fn run_replay(
         max_diff_s: 0.02,
     };
     finish(&rec, reference, window, out, input)
+}
+
+#[cfg(test)]
+mod reference_tests {
+    use super::*;
+    use crate::sample::{AutopilotEstimate, GnssFix};
+
+    fn at(source: &str, t: i64, data: SensorData) -> Sample {
+        Sample {
+            source: source.into(),
+            stamp_us: Some(t),
+            arrival_us: t,
+            data,
+        }
+    }
+
+    /// An autopilot estimate with a heading but never a position (EKF2 before its
+    /// first fix) is no reference: not chosen by default, and an error that says why
+    /// when named; GNSS with a fix is chosen instead.
+    #[test]
+    fn a_reference_without_positions_is_refused_and_said_why() {
+        let heading_only = SensorData::AutopilotEstimate(AutopilotEstimate {
+            local_position: None,
+            geodetic: None,
+            velocity: None,
+            yaw: Some(0.3),
+        });
+        let fix = SensorData::Gnss(GnssFix {
+            lat_deg: 47.0,
+            lon_deg: 8.0,
+            alt_m: 500.0,
+            fix: GnssFixType::Fix3d,
+            position_cov: None,
+            satellites: Some(9),
+            hdop: Some(0.8),
+            vdop: None,
+            velocity: None,
+        });
+        let samples: Vec<Sample> = (0..20)
+            .flat_map(|i| {
+                [
+                    at("ekf2", i * 100_000, heading_only.clone()),
+                    at("gps", i * 100_000 + 1, fix.clone()),
+                ]
+            })
+            .collect();
+        let found = log_sources(&samples);
+        assert_eq!(found.auto_reference.as_deref(), Some("gps"));
+        let dir = std::env::temp_dir().join(format!("skyfuse-ref-{}", std::process::id()));
+        let opts = ReplayOptions {
+            reference: "ekf2".into(),
+            ..ReplayOptions::default()
+        };
+        let err = run_replay(
+            "t",
+            &samples,
+            EstimatorConfig::default(),
+            HealthConfig::default(),
+            &opts,
+            &dir,
+            &mut |_| {},
+        )
+        .expect_err("refused");
+        let _ = std::fs::remove_dir_all(&dir);
+        let said = err.to_string();
+        assert!(
+            said.contains("none of its 20 samples has a position")
+                && said.contains("never had a valid position")
+                && said.contains("gps (gnss)"),
+            "{said}"
+        );
+    }
 }

@@ -12,6 +12,12 @@ use std::sync::Arc;
 /// Largest plausible specific force, m/s², and rate, rad/s.
 const MAX_ACCEL: f64 = 160.0;
 const MAX_GYRO: f64 = 35.0;
+/// Longest interval between an IMU's samples that still drives the prediction, µs
+/// (20 Hz): each sample is held until the next, so a slower one (a log's 2 Hz
+/// `vehicle_imu`, a link that drops most of it) would push stale forces through the
+/// filter for that long. Its samples are refused, as EKF2 refuses an IMU whose interval
+/// is far from its filter period.
+pub const MAX_IMU_INTERVAL_US: i64 = 50_000;
 
 /// The IMU sample the prediction holds until the next one.
 #[derive(Debug, Clone, PartialEq)]
@@ -55,6 +61,26 @@ pub struct ImuState {
     pub bias_from_rates: bool,
     /// Latest bias-corrected body rate, rad/s.
     pub rate: Option<(i64, Vector3<f64>)>,
+    /// Each IMU source's last sample time, used or not.
+    pub last_seen: Vec<(Arc<str>, i64)>,
+}
+
+impl ImuState {
+    /// The interval since `source`'s previous sample (none for its first), and `t`
+    /// remembered as its latest.
+    fn interval(&mut self, source: &str, t: i64) -> Option<i64> {
+        match self
+            .last_seen
+            .iter_mut()
+            .find(|(s, _)| s.as_ref() == source)
+        {
+            Some((_, last)) => Some(t - std::mem::replace(last, t)),
+            None => {
+                self.last_seen.push((Arc::from(source), t));
+                None
+            }
+        }
+    }
 }
 
 fn finite3(v: &Vector3<f64>) -> bool {
@@ -227,6 +253,22 @@ fn accel_var(imu: &Imu, dt: f64, cfg: &EstimatorConfig) -> f64 {
 pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
     if let Err(why) = checks(imu) {
         core.reject(t, source, why, ctx);
+        return;
+    }
+    // Continue condition: the previous sample close enough to integrate from; else
+    // the held sample is dropped too, so nothing stale drives the prediction.
+    if core
+        .imu
+        .interval(source, t)
+        .is_some_and(|dt| dt > MAX_IMU_INTERVAL_US)
+    {
+        core.imu.last = None;
+        core.reject(
+            t,
+            source,
+            "IMU samples too far apart to integrate (below 20 Hz)",
+            ctx,
+        );
         return;
     }
     let cfg = ctx.cfg;

@@ -1071,3 +1071,33 @@ fn a_samples_gate_tests_count_once_and_over_the_gate_once() {
     assert_eq!((s.tested, s.tested_over_gate), (4, 3));
     assert_eq!(s.last_time_us, Some(16_000));
 }
+
+/// An IMU at 2 Hz (a log's `vehicle_imu`) cannot drive the prediction: after its first
+/// sample every one is refused, saying why; the same IMU at 200 Hz is used.
+#[test]
+fn an_imu_too_slow_to_integrate_is_refused() {
+    let imu = |t: i64| Sample {
+        source: Arc::from("imu"),
+        stamp_us: Some(t),
+        arrival_us: t,
+        data: SensorData::Imu(Imu::from_rates(
+            Some(Vector3::zeros()),
+            Some(Vector3::new(0.0, 0.0, GRAVITY)),
+        )),
+    };
+    for (period_us, refused) in [(500_000, true), (5_000, false)] {
+        let mut est = Estimator::new(EstimatorConfig::default());
+        let mut said = vec![];
+        for i in 0..10 {
+            for e in est.process(&imu(i * period_us)) {
+                said.push(format!("{e:?}"));
+            }
+        }
+        let refusals = said
+            .iter()
+            .filter(|e| e.contains("too far apart to integrate"))
+            .count();
+        assert_eq!(refusals > 0, refused, "{period_us} µs: {said:?}");
+        assert_eq!(est.core.imu.last.is_some(), !refused, "{period_us} µs");
+    }
+}
