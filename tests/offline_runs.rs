@@ -709,3 +709,64 @@ fn a_simulated_dataflash_log_replays_against_its_truth_and_keeps_the_promise() {
     let said = String::from_utf8_lossy(&run.stdout) + String::from_utf8_lossy(&run.stderr);
     assert!(said.contains("the file is cut short"), "{said}");
 }
+
+#[test]
+fn eval_replays_every_log_it_finds_and_tabulates_them() {
+    // `skyfuse eval DIR`: a DataFlash log of the simulator found in a directory, replayed
+    // with the flow set and with everything but the reference, against its truth; one
+    // table (eval.md) and its data (eval.json); --check passes when every run's fused
+    // track beats its comparisons and keeps its σ, and an empty corpus is an error.
+    let dir = tmp("eval");
+    let logs = dir.join("logs");
+    sim_dataflash(&logs.join("nested"), "flow-laps", 120);
+    let out = dir.join("out");
+    let bin = env!("CARGO_BIN_EXE_skyfuse");
+    let run = std::process::Command::new(bin)
+        .arg("eval")
+        .arg(&logs)
+        .arg("--out")
+        .arg(&out)
+        .arg("--check")
+        .output()
+        .expect("eval runs");
+    let said =
+        String::from_utf8_lossy(&run.stdout).to_string() + &String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{said}");
+    let rows: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("eval.json")).expect("eval.json"))
+            .expect("json");
+    let rows = rows.as_array().expect("rows");
+    let sets: Vec<&str> = rows.iter().filter_map(|r| r["set"].as_str()).collect();
+    assert_eq!(sets, ["flow", "all"], "{rows:?}");
+    for r in rows {
+        assert_eq!(r["reference"], "sim_truth", "{r}");
+        let fused = r["fused"].as_f64().expect("fused scored");
+        let dr = r["dead_reckoning"][0][1]
+            .as_f64()
+            .expect("dead reckoning scored");
+        assert!(fused < dr, "{r}");
+    }
+    let table = std::fs::read_to_string(out.join("eval.md")).expect("eval.md");
+    assert!(
+        table.contains("| flow | sim_truth |") && table.lines().count() == 4,
+        "{table}"
+    );
+    assert!(
+        said.contains("flow: fusing attitude, flow, range against sim_truth"),
+        "{said}"
+    );
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).expect("dir");
+    let run = std::process::Command::new(bin)
+        .arg("eval")
+        .arg(&empty)
+        .arg("--out")
+        .arg(dir.join("out2"))
+        .output()
+        .expect("eval runs");
+    assert!(!run.status.success());
+    assert!(
+        String::from_utf8_lossy(&run.stderr).contains("nothing to evaluate"),
+        "{run:?}"
+    );
+}

@@ -219,11 +219,12 @@ pub(super) fn eval(
                 continue;
             }
             let opts = ReplayOptions {
-                fuse: Some(fuse),
+                fuse: Some(fuse.clone()),
                 reference: reference.clone(),
                 window: None,
                 t0_us: flight.t0_us(),
             };
+            eprintln!("  {set}: fusing {} against {reference}", fuse.join(", "));
             let dir = out.join(&name).join(set);
             let cfg = flight.config();
             let summary = offline::run_replay(

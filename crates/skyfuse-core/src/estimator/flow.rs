@@ -20,6 +20,10 @@ use crate::sample::OpticalFlow;
 use nalgebra::{Matrix3, UnitQuaternion, Vector2, Vector3};
 use serde::Serialize;
 
+/// Oldest IMU gyro reading that still compensates a flow sample without a gyro of its
+/// own, µs.
+const MAX_GYRO_AGE_US: i64 = 100_000;
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct FlowState {
     pub lpf: Lpf3,
@@ -238,7 +242,18 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
         }
         let gyro = match f.gyro.filter(|g| g.iter().all(|v| v.is_finite())) {
             Some(g) => g.xy(),
-            None => match st.lpf.y.or(core.imu.rate.map(|r| r.1)) {
+            // The IMU's, low-passed to the flow's phase, if it is current: a gyro that
+            // stopped (a dropout, an IMU refused as too slow) compensates nothing.
+            None => match st
+                .lpf
+                .y
+                .filter(|_| st.lpf.t.is_some_and(|g| t - g <= MAX_GYRO_AGE_US))
+                .or(core
+                    .imu
+                    .rate
+                    .filter(|(g, _)| t - g <= MAX_GYRO_AGE_US)
+                    .map(|r| r.1))
+            {
                 Some(g) => g.xy(),
                 None => {
                     core.flow.put(source, st);

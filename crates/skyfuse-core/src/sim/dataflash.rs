@@ -112,6 +112,9 @@ pub struct DataflashWriter<W: Write> {
     buf: Vec<u8>,
     defined: [bool; 256],
     range_params_written: bool,
+    /// The vehicle's latest body rates (IMU gyro, else the autopilot's), FLU: what
+    /// ArduPilot logs as OF's bodyX/Y when the flow sensor has no gyro of its own.
+    body_rates: Option<nalgebra::Vector3<f64>>,
     summary: DataflashSummary,
 }
 
@@ -122,6 +125,7 @@ impl<W: Write> DataflashWriter<W> {
             buf: Vec::with_capacity(128),
             defined: [false; 256],
             range_params_written: false,
+            body_rates: None,
             summary: DataflashSummary::default(),
         }
     }
@@ -177,12 +181,16 @@ impl<W: Write> DataflashWriter<W> {
                     self.summary.skipped += 1;
                     return Ok(());
                 };
+                self.body_rates = Some(g);
                 p.push(0);
                 let (g, a) = (frames::frd_to_flu(g), frames::frd_to_flu(a));
                 put_f32s(&mut p, &[g.x, g.y, g.z, a.x, a.y, a.z]);
                 &IMU
             }
             SensorData::Attitude(att) => {
+                if let Some(w) = att.rates {
+                    self.body_rates = Some(w);
+                }
                 let (r, pi, y) = frames::q_ned_frd_to_enu_flu(att.orientation).euler_angles();
                 let yaw = y.to_degrees().rem_euclid(360.0);
                 put_centi_i16(&mut p, &[0.0, r.to_degrees(), 0.0, pi.to_degrees()]);
@@ -194,7 +202,10 @@ impl<W: Write> DataflashWriter<W> {
                     self.summary.skipped += 1;
                     return Ok(());
                 };
-                let body = f.gyro.map_or([f64::NAN; 2], |g| [g.x, -g.y]);
+                let body = f
+                    .gyro
+                    .or(self.body_rates)
+                    .map_or([f64::NAN; 2], |g| [g.x, -g.y]);
                 p.push(f.quality);
                 put_f32s(&mut p, &[rate.x, -rate.y, body[0], body[1]]);
                 &OF
