@@ -262,6 +262,13 @@ impl Ekf {
                     k[c * n + j] = row[c];
                 }
             }
+            // Consider states are not corrected: their gain rows are zero.
+            let consider = m.considered();
+            for &j in consider {
+                for c in 0..M {
+                    k[c * n + j] = 0.0;
+                }
+            }
             // x += K y, summed by K's columns.
             let x = self.x.as_mut_slice();
             for (j, xj) in x.iter_mut().enumerate() {
@@ -270,6 +277,31 @@ impl Ekf {
                     dx += k[c * n + j] * y[c];
                 }
                 *xj += dx;
+            }
+            if !consider.is_empty() {
+                // A gain that is not optimal (Schmidt's): the full Joseph form, P − K H P
+                // − (K H P)ᵀ + K S Kᵀ, S = L Lᵀ.
+                let l = chol.l();
+                let p = self.p.as_mut_slice();
+                for j in 0..n {
+                    for i in 0..n {
+                        let mut d = 0.0;
+                        for c in 0..M {
+                            d += k[c * n + i] * pht[c * n + j] + pht[c * n + i] * k[c * n + j];
+                        }
+                        for e in 0..M {
+                            let (mut kli, mut klj) = (0.0, 0.0);
+                            for c in 0..M {
+                                kli += k[c * n + i] * l[(c, e)];
+                                klj += k[c * n + j] * l[(c, e)];
+                            }
+                            d -= kli * klj;
+                        }
+                        p[j * n + i] -= d;
+                    }
+                }
+                self.symmetrise();
+                return out;
             }
             // P ← P − K H P: with the optimal gain this is the Joseph form
             // (I − KH) P (I − KH)ᵀ + K R Kᵀ, at O(n² m) instead of three n³
@@ -750,6 +782,53 @@ mod tests {
         assert!(all_finite(&long));
         long[577] = f64::NAN;
         assert!(!all_finite(&long));
+    }
+
+    /// Schmidt's consider update: a measurement of a + c with c considered corrects a as
+    /// the optimal filter would, with c's uncertainty in the innovation, and leaves c,
+    /// its variance, and nothing else touched; P stays symmetric and positive.
+    #[test]
+    fn a_considered_state_is_counted_but_not_corrected() {
+        let (a, c) = (IDX_P, IDX_P + 1);
+        let (pa, pc, r) = (4.0, 0.25, 1.0);
+        let mut ekf = Ekf::new(
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::new(pa, pc, 9.0),
+            Vector3::repeat(1.0),
+            0.0,
+        );
+        let before = ekf.clone();
+        let mut m = Measurement::new(1);
+        m.set_jacobian(0, a, 1.0);
+        m.set_jacobian(0, c, 1.0);
+        m.set_innovation(0, 2.0);
+        m.set_noise(0, 0, r);
+        m.consider(c);
+        assert!(ekf.update(&m, 0.0, true).accepted);
+        let s = pa + pc + r;
+        assert!((ekf.x[a] - pa / s * 2.0).abs() < 1e-12, "{}", ekf.x[a]);
+        assert_eq!(ekf.x[c], before.x[c]);
+        assert!((ekf.p[(a, a)] - (pa - pa * pa / s)).abs() < 1e-12);
+        assert!((ekf.p[(c, c)] - pc).abs() < 1e-12);
+        // The a–c covariance: −K_a·(H P)_c = −(pa/s)·pc.
+        assert!((ekf.p[(a, c)] + pa / s * pc).abs() < 1e-12);
+        assert!((ekf.p[(a, c)] - ekf.p[(c, a)]).abs() < 1e-15);
+        for i in 0..ekf.n() {
+            if i != a && i != c {
+                assert_eq!(ekf.p[(i, i)], before.p[(i, i)].max(VAR_FLOOR), "state {i}");
+            }
+        }
+        assert!(ekf.p.clone().cholesky().is_some());
+        // Not considered, the same measurement corrects both.
+        let mut both = before.clone();
+        let mut plain = Measurement::new(1);
+        plain.set_jacobian(0, a, 1.0);
+        plain.set_jacobian(0, c, 1.0);
+        plain.set_innovation(0, 2.0);
+        plain.set_noise(0, 0, r);
+        assert!(both.update(&plain, 0.0, true).accepted);
+        assert!((both.x[c] - pc / s * 2.0).abs() < 1e-12);
     }
 
     /// A filter with state `x` and covariance `p` over the core states and one odometry

@@ -20,7 +20,14 @@ pub struct Measurement {
     y: [f64; MAX_ROWS],
     r: Matrix3<f64>,
     h: [JacobianRow; MAX_ROWS],
+    /// States this measurement depends on but must not correct (Schmidt's "consider"
+    /// states: unobservable here, their uncertainty still counted).
+    consider: [usize; MAX_CONSIDER],
+    n_consider: usize,
 }
+
+/// Most consider states one measurement has.
+pub const MAX_CONSIDER: usize = 2;
 
 /// One row of H: its non-zero entries, by state index.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -55,7 +62,22 @@ impl Measurement {
             y: [0.0; MAX_ROWS],
             r: Matrix3::zeros(),
             h: [JacobianRow::default(); MAX_ROWS],
+            consider: [0; MAX_CONSIDER],
+            n_consider: 0,
         }
+    }
+
+    /// `state` is considered, not corrected (its Jacobian entries stay: they carry its
+    /// uncertainty into the innovation's).
+    pub fn consider(&mut self, state: usize) {
+        assert!(self.n_consider < MAX_CONSIDER, "too many consider states");
+        self.consider[self.n_consider] = state;
+        self.n_consider += 1;
+    }
+
+    /// The states considered, not corrected.
+    pub fn considered(&self) -> &[usize] {
+        &self.consider[..self.n_consider]
     }
 
     /// Direct measurements of the states `first..first + rows` (position, velocity):

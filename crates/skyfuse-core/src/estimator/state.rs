@@ -392,6 +392,21 @@ impl Core {
         }
         let cfg = ctx.cfg;
         let (scale_var, heading_var) = (cfg.flow_scale_std.powi(2), cfg.flow_heading_std.powi(2));
+        // Continue condition of the flow's scale error: something that sees it, an IMU
+        // driving the prediction (metric accelerations beside the flow's velocity
+        // changes) or another horizontal source. A flow alone cannot tell a slow sensor
+        // from a slow vehicle, and a filter free to choose drifts (4 m/s laps without an
+        // IMU: −5 % whatever the sensor's error, the fused track worse than the flow
+        // integrated). Otherwise it is a consider state: held, its uncertainty carried
+        // into every flow sample and, through the covariance, into the position.
+        let imu_timeout = (cfg.imu_timeout_ms * 1000.0) as i64;
+        let imu_drives = self.att.known()
+            && self
+                .imu
+                .last
+                .as_ref()
+                .is_some_and(|l| l.accel.is_some() && t - l.t <= imu_timeout);
+        let observed = imu_drives || self.other_aiding(t, source, ctx);
         let Some(ekf) = self.ekf.as_mut() else { return };
         // A flow source reads (1 + k)·Rz(ψ) times the body velocity: k its scale error,
         // ψ its heading error (both states of the filter).
@@ -416,9 +431,12 @@ impl Core {
                         let dp = dturn_dp[i][0] * rt[(0, j)] + dturn_dp[i][1] * rt[(1, j)];
                         m.set_jacobian(i, IDX_V + j, (1.0 + k) * dp);
                     }
-                    m.set_jacobian(i, si, turned[i]);
                     let dpsi = if i == 0 { -pred.y } else { pred.x };
+                    m.set_jacobian(i, si, turned[i]);
                     m.set_jacobian(i, si + 1, (1.0 + k) * dpsi);
+                }
+                if !observed {
+                    m.consider(si);
                 }
             }
             None => {

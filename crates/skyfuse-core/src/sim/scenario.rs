@@ -202,6 +202,10 @@ pub const NAMES: &[(&str, &str)] = &[
         "flow-laps-imu",
         "flow-laps with the IMU, the flow reading 5 % slow",
     ),
+    (
+        "flow-laps-slow",
+        "flow-laps with the flow reading 5 % slow and no IMU: nothing sees the scale",
+    ),
 ];
 
 /// Look up a scenario by name.
@@ -211,7 +215,7 @@ pub fn scenario(name: &str) -> Option<Scenario> {
     let hardware = match name {
         "sonar-climb" | "sonar-climb-imu" | "sonar-climb-baro" => px4flow_sonar(20.0),
         "flow-laps" => slow_flow_outdoors(1.05),
-        "flow-laps-imu" => slow_flow_outdoors(0.95),
+        "flow-laps-imu" | "flow-laps-slow" => slow_flow_outdoors(0.95),
         _ => Hardware::default(),
     };
     let (profile, streams, faults) = match name {
@@ -232,6 +236,7 @@ pub fn scenario(name: &str) -> Option<Scenario> {
         }
         "flow-laps" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, false), vec![]),
         "flow-laps-imu" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, true), vec![]),
+        "flow-laps-slow" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, false), vec![]),
         "demo" => (Profile::Demo, all, vec![]),
         "hover" => (Profile::Hover, all, vec![]),
         "figure8" => (Profile::Figure8, all, vec![]),
