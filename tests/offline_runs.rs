@@ -132,14 +132,14 @@ fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
         f_org.0 < e_org.0 && f_org.1 < e_org.1,
         "origin-aligned {f_org:?} vs EKF2 {e_org:?}"
     );
-    // SE(3)-aligned: RMSE below EKF2's; the maximum within 1 m of it. In flight this
+    // SE(3)-aligned: RMSE below EKF2's; the maximum within 0.75 m of it. In flight this
     // flow sensor reads 5-6 % slow against the VIO (EKF2's own flow velocity,
     // estimator_optical_flow_vel, the same); EKF2 corrects that with its 1 kHz IMU,
     // which this export does not have (vehicle_imu at 2 Hz). Without an IMU or another
     // horizontal source nothing sees a flow's scale, so skyfuse holds it (a consider
     // state: counted in σ, never corrected) instead of letting it drift.
     assert!(
-        f_se3.0 < e_se3.0 && f_se3.1 < e_se3.1 + 1.0,
+        f_se3.0 < e_se3.0 && f_se3.1 < e_se3.1 + 0.75,
         "SE(3) {f_se3:?} vs EKF2 {e_se3:?}"
     );
     // No runaway on the ground: every estimate, valid or not, stays near the room.
@@ -170,17 +170,14 @@ fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
         );
     }
     // "Valid" keeps its promise against the VIO (frames registered at the first valid
-    // pose): none beyond 5σ, and at least 96 % within 3σ on every axis. The issue asks
-    // 99 %: the misses (north, 3.4 %) are all in the second flight (230-295 s), where
-    // the VIO moves about 90° away from every other track of the log: second by second,
-    // PX4 EKF2's displacement is 94° from the VIO's (median), both flows' dead
-    // reckoning 90° and 75°, skyfuse's 84°, while skyfuse and EKF2 agree within 9°. The
-    // reference, not the estimate, turned; the vehicle moving only ±2 m there keeps
-    // the misses at 4-5 m.
+    // pose), as the issue asks: at least 99 % within 3σ on every axis, none beyond 5σ.
+    // It did not (north 96-98 %) while a vehicle set down after moving unaided took
+    // σ 1.8 → 1.35 m from the zero-velocity constraint's correlation with the position;
+    // the position is now considered there, not corrected.
     let c = s.consistency.clone().expect("consistency measured");
     println!("consistency against the VIO: {c:?}");
     assert_eq!(c.beyond_5_sigma, 0, "{c:?}");
-    assert!(c.within_3_sigma.iter().all(|f| *f >= 0.96), "{c:?}");
+    assert!(c.within_3_sigma.iter().all(|f| *f >= 0.99), "{c:?}");
     // With the autopilot's barometer (vehicle_air_data) as well: as consistent, the
     // height too (the barometer wanders a metre in minutes indoors), and as close.
     let baro = tmp("px4-baro");
@@ -199,7 +196,7 @@ fn real_px4_flight_whole_log_against_vio_beside_ekf2() {
         .expect("fused score with the barometer");
     println!("with the barometer: fused {fb:.3} m; {cb:?}");
     assert_eq!(cb.beyond_5_sigma, 0, "{cb:?}");
-    assert!(cb.within_3_sigma.iter().all(|f| *f >= 0.96), "{cb:?}");
+    assert!(cb.within_3_sigma.iter().all(|f| *f >= 0.99), "{cb:?}");
     assert!(fb < e_se3.0, "with the barometer {fb} vs EKF2 {:?}", e_se3);
     assert!(a.join("vio.tum").exists() && a.join("ekf2.tum").exists());
 }
@@ -774,4 +771,39 @@ fn eval_replays_every_log_it_finds_and_tabulates_them() {
         String::from_utf8_lossy(&run.stderr).contains("nothing to evaluate"),
         "{run:?}"
     );
+}
+
+#[test]
+fn a_real_px4_log_carried_unaided_is_not_valid_once_set_down_far_from_where_it_was() {
+    // A 9 s real PX4 log (FMU-v5 on the bench, carried): IMU, barometer and attitude
+    // only, its GPS (σ 5.5 m) the reference. Moved by hand with no horizontal aiding,
+    // the IMU-only estimate drifts 17 m in 5 s while the loosely held point kept its σ
+    // at 1.5 m; set down, the pose was called valid 11-17 m from the GPS (2 of 4
+    // matched poses beyond 5σ). The σ on setting down is now at least the distance the
+    // estimate went unaided: nothing so far from the GPS is valid.
+    const TEST: &str =
+        "a_real_px4_log_carried_unaided_is_not_valid_once_set_down_far_from_where_it_was";
+    let Some(file) = shared_data("px4-gps-fmuv5/roboto_test_fmuv5_gps.ulg", TEST) else {
+        return;
+    };
+    let log =
+        skyfuse::replay::px4log::read_ulog_with_progress(&file, &mut |_, _| {}).expect("ULog");
+    let out = tmp("px4-gps-carried");
+    let s = replay(
+        "fmuv5-gps",
+        &log.samples,
+        Some(&["attitude", "baro", "imu"]),
+        "gps",
+        &out,
+    );
+    let c = s.consistency.clone();
+    println!("{:?}; {c:?}", s.availability);
+    assert!(c.as_ref().is_none_or(|c| c.kept()), "{c:?}");
+    // Every valid pose near the GPS's start (the bench), none where the drift took it.
+    let fused = read_tum(&out.join("fused.tum"));
+    assert!(!fused.is_empty());
+    for (t, p) in &fused {
+        let d = nalgebra::Vector3::from(*p).xy().norm();
+        assert!(d < 2.0, "valid at {t:.1} s {d:.1} m from the start");
+    }
 }

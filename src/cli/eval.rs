@@ -65,7 +65,7 @@ impl Row {
                 row.dead_reckoning.push(entry);
             } else if kind(&sc.name) == Some(SensorKind::AutopilotEstimate) {
                 row.autopilot.push(entry);
-            } else {
+            } else if !republished(&sc.name, kinds) {
                 row.sources.push(entry);
             }
         }
@@ -136,6 +136,18 @@ fn flight_name(path: &Path) -> String {
         .replace('/', "_")
 }
 
+/// Whether `id` is an autopilot's re-publication of a sensor the log also has raw
+/// (PX4's `vehicle_gps_position` beside `sensor_gps`, `vehicle_imu` beside
+/// `sensor_combined`, EKF2's `estimator_states` quaternions beside `vehicle_attitude`):
+/// fusing both would count one sensor twice, and scoring one against the other
+/// compares a receiver with itself.
+fn republished(id: &str, sources: &[(String, SensorKind)]) -> bool {
+    let has = |n: &str| sources.iter().any(|(s, _)| s == n);
+    (id.starts_with("vehicle_gps_position") && has("gps"))
+        || (id.starts_with("vehicle_imu") && has("imu"))
+        || (id.starts_with("attitude_states") && has("attitude"))
+}
+
 /// The source sets replayed for a log with these sources.
 fn source_sets(
     sources: &[(String, SensorKind)],
@@ -144,7 +156,12 @@ fn source_sets(
     let of = |kinds: &[SensorKind]| -> Vec<String> {
         sources
             .iter()
-            .filter(|(id, k)| kinds.contains(k) && id != reference && id != "sim_truth")
+            .filter(|(id, k)| {
+                kinds.contains(k)
+                    && id != reference
+                    && id != "sim_truth"
+                    && !republished(id, sources)
+            })
             .map(|(id, _)| id.clone())
             .collect()
     };
@@ -363,6 +380,17 @@ mod tests {
         assert_eq!(sets[0].1, ["attitude", "flow", "range", "baro"]);
         assert_eq!(sets[1].0, "all");
         assert_eq!(sets[1].1, ["imu", "attitude", "flow", "range", "baro"]);
+        // An autopilot's re-publications of a sensor it also logs are not fused again.
+        let px4 = s(&[
+            ("gps", SensorKind::Gnss),
+            ("vehicle_gps_position", SensorKind::Gnss),
+            ("imu", SensorKind::Imu),
+            ("vehicle_imu_1", SensorKind::Imu),
+            ("attitude", SensorKind::Attitude),
+            ("attitude_states_2", SensorKind::Attitude),
+            ("ekf2", SensorKind::AutopilotEstimate),
+        ]);
+        assert_eq!(source_sets(&px4, "ekf2")[0].1, ["gps", "imu", "attitude"]);
         // No flow: only the `all` set.
         let sets = source_sets(
             &s(&[("gps", SensorKind::Gnss), ("imu", SensorKind::Imu)]),

@@ -73,6 +73,9 @@ pub struct Recorder {
     /// Per position source, raw (GNSS in local ENU from its first fix, odometry in its
     /// own frame, the autopilot's estimate) or as integrated by the estimator (flow).
     pub sources: SourceMap<Trajectory>,
+    /// The position covariance each source pose came with, in its own frame (m²; zero
+    /// where it came with none), parallel to `sources`: a reference's own uncertainty.
+    pub source_cov: SourceMap<Vec<Matrix3<f64>>>,
     /// Plain flow dead reckoning of each flow source (`<source>_dr`), the baseline.
     pub dead_reckoning: crate::dead_reckoning::FlowDeadReckoning,
     pub events: Vec<String>,
@@ -90,6 +93,28 @@ pub struct Recorder {
 /// positions and make none).
 fn track<'a>(sources: &'a mut SourceMap<Trajectory>, id: &str) -> &'a mut Trajectory {
     sources.get_or_insert_with(id, Trajectory::default)
+}
+
+/// A source pose with the covariance it came with (zero: none), kept parallel.
+fn push_source(
+    rec: &mut Recorder,
+    id: &str,
+    t: f64,
+    p: Vector3<f64>,
+    q: UnitQuaternion<f64>,
+    cov: Matrix3<f64>,
+) {
+    let tr = track(&mut rec.sources, id);
+    let n = tr.t.len();
+    push(tr, t, p, q);
+    if tr.t.len() > n {
+        let cov = if cov.iter().all(|v| v.is_finite()) {
+            cov
+        } else {
+            Matrix3::zeros()
+        };
+        rec.source_cov.get_or_insert_with(id, Vec::new).push(cov);
+    }
 }
 
 fn push(tr: &mut Trajectory, t: f64, p: Vector3<f64>, q: UnitQuaternion<f64>) {
@@ -124,15 +149,15 @@ impl Recorder {
                     .gnss_origin
                     .get_or_insert_with(|| LocalEnu::new(g.lat_deg, g.lon_deg, g.alt_m));
                 let p = origin.to_enu(g.lat_deg, g.lon_deg, g.alt_m);
-                push(
-                    track(&mut self.sources, id),
-                    t,
-                    p,
-                    UnitQuaternion::identity(),
-                );
+                let cov = g.position_cov.as_deref().copied().unwrap_or_default();
+                push_source(self, id, t, p, UnitQuaternion::identity(), cov);
             }
             SensorData::Odometry(o) => {
-                push(track(&mut self.sources, id), t, o.position, o.orientation);
+                let cov = o
+                    .pose_cov
+                    .map(|c| c.fixed_view::<3, 3>(0, 0).into_owned())
+                    .unwrap_or_default();
+                push_source(self, id, t, o.position, o.orientation, cov);
             }
             SensorData::VehicleState(v) => {
                 if let Some(l) = v.landed {
@@ -154,7 +179,7 @@ impl Recorder {
                     Some(o.to_enu(lat, lon, alt))
                 });
                 if let Some(p) = p {
-                    push(track(&mut self.sources, id), t, p, q);
+                    push_source(self, id, t, p, q, Matrix3::zeros());
                 }
             }
             _ => {}
@@ -332,6 +357,7 @@ impl Consistency {
 /// first (a reference in its own frame).
 fn consistency(
     reference: &Trajectory,
+    reference_cov: Option<&[Matrix3<f64>]>,
     estimate: &Trajectory,
     cov: &[Matrix3<f64>],
     max_diff_s: f64,
@@ -361,9 +387,19 @@ fn consistency(
     };
     let mut within = [0usize; 3];
     let (mut beyond, mut worst, mut worst_t, mut worst_axis, mut nees) = (0, 0.0f64, 0.0, 0, 0.0);
+    // Registered at the first matched pose, every later pose inherits that pose's own
+    // error: its covariance counts too (the correlation between the two, which would
+    // lessen it, is not known here).
+    let registration = if align { cov[ie[0]] } else { Matrix3::zeros() };
     for (k, &i) in ie.iter().enumerate() {
         let err = rot.apply(&e.p[k]) - r.p[k];
-        let c = rot.rotation * cov[i] * rot.rotation.transpose();
+        // The reference's own uncertainty, in its frame, where it has one (GNSS, an
+        // odometry's covariance): the difference of two estimates has both.
+        let own = reference_cov
+            .and_then(|c| c.get(ir[k]))
+            .copied()
+            .unwrap_or_default();
+        let c = rot.rotation * (cov[i] + registration) * rot.rotation.transpose() + own;
         let mut out = false;
         for a in 0..3 {
             let ratio = err[a].abs() / c[(a, a)].max(1e-12).sqrt();
@@ -620,12 +656,12 @@ fn finish(
     let consistency = match &reference {
         Reference::Truth(truth) => {
             let t = truth_at(*truth, &rec.fused.t);
-            consistency(&t, &rec.fused, &rec.fused_cov, 1e-9, false)
+            consistency(&t, None, &rec.fused, &rec.fused_cov, 1e-9, false)
         }
-        Reference::Source { name, max_diff_s } => rec
-            .sources
-            .get(name)
-            .and_then(|r| consistency(r, &rec.fused, &rec.fused_cov, *max_diff_s, true)),
+        Reference::Source { name, max_diff_s } => rec.sources.get(name).and_then(|r| {
+            let own = rec.source_cov.get(name).map(Vec::as_slice);
+            consistency(r, own, &rec.fused, &rec.fused_cov, *max_diff_s, true)
+        }),
     };
     files.push("summary.json".into());
     let summary = Summary {
