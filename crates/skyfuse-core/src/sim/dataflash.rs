@@ -14,9 +14,13 @@ use super::sensors::{HOME_ALT, HOME_LAT, HOME_LON};
 use super::truth::TruthState;
 use super::SimEvent;
 use crate::geo::LocalEnu;
-use crate::replay::dataflash::{FMT_LEN, FMT_TYPE};
 use crate::sample::{frames, GnssFixType, SensorData};
 use std::io::{self, Write};
+
+/// The FMT record's type and length, as every DataFlash log has them (the reader's
+/// own, `replay::dataflash`, which the round-trip tests hold this writer to).
+const FMT_TYPE: u8 = 0x80;
+const FMT_LEN: usize = 89;
 
 /// The simulator's time 0 in the log's clock (ArduPilot logs start after boot).
 pub const BOOT_OFFSET_US: u64 = 10_000_000;
