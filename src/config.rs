@@ -496,7 +496,98 @@ impl InputConfig {
     }
 }
 
+/// Whether what an input's messages become is its `kind`: a ROS type, or the MAVLink
+/// message its key names, gives one kind of sample, and a sample of another kind is
+/// only ever ignored (an input that counts every message as ignored and reports "no
+/// data"). A key that names no MAVLink message at all is a typo.
+fn input_kind_matches(input: &InputConfig) -> Result<(), String> {
+    let wants = input.kind;
+    let gives = match input.format {
+        Format::Ros2 | Format::Ros1 => match input.ros_type {
+            Some(t) => Some((t.ros2_name().to_string(), t.kind())),
+            None => None,
+        },
+        Format::MavlinkJson | Format::MavlinkRaw => {
+            let last = input.key.rsplit('/').next().unwrap_or_default();
+            let is_name = !last.is_empty()
+                && last
+                    .chars()
+                    .all(|c| c.is_ascii_uppercase() || c.is_ascii_digit() || c == '_')
+                && last.chars().next().is_some_and(|c| c.is_ascii_uppercase());
+            if !is_name {
+                None
+            } else {
+                match crate::codec::mavlink::message_kind(last) {
+                    Ok(Some(k)) => Some((last.to_string(), k)),
+                    Ok(None) => {
+                        return Err(format!(
+                            "`key` {:?} names MAVLink {last}, which carries nothing skyfuse reads (its messages would all be ignored); the {} messages are {}",
+                            input.key,
+                            wants.as_str(),
+                            crate::codec::mavlink::messages_of_kind(wants).join(", ")
+                        ))
+                    }
+                    Err(()) => {
+                        let near = crate::codec::mavlink::closest_message(last)
+                            .map(|m| format!(" (did you mean {m}?)"))
+                            .unwrap_or_default();
+                        return Err(format!(
+                            "`key` {:?} ends in {last}, which is no MAVLink message{near}",
+                            input.key
+                        ));
+                    }
+                }
+            }
+        }
+        Format::Json => None,
+    };
+    match gives {
+        Some((what, k)) if k != wants => Err(format!(
+            "{what} gives {} samples, but `kind` is \"{}\": its messages would all be ignored (set kind = \"{}\", or the {} input's message type)",
+            k.as_str(),
+            wants.as_str(),
+            k.as_str(),
+            wants.as_str()
+        )),
+        _ => Ok(()),
+    }
+}
+
 impl Config {
+    /// What makes this config a vehicle that fuses nothing, or tunes what is not there
+    /// (issue 35, item 5): no input enabled (a config's `[[inputs]]` replace the
+    /// built-in ones entirely), and `[estimator.sources.ID]` tables that name no input
+    /// (a typo falls back to the defaults without a word). Offline runs name their
+    /// sources after the log, so only the service asks.
+    pub fn vehicle_problems(&self) -> (Vec<String>, Vec<String>) {
+        let ids: Vec<&str> = self.inputs.iter().map(|i| i.id.as_str()).collect();
+        let typos = self
+            .estimator
+            .sources
+            .keys()
+            .filter(|k| !ids.contains(&k.as_str()))
+            .map(|k| {
+                format!(
+                    "[estimator.sources.{k}] names no input (the inputs: {})",
+                    if ids.is_empty() {
+                        "none".to_string()
+                    } else {
+                        ids.join(", ")
+                    }
+                )
+            })
+            .collect();
+        let empty = if self.inputs.iter().any(|i| i.enabled) {
+            vec![]
+        } else {
+            vec![format!(
+                "no input is enabled ({} configured): a config's [[inputs]] replace the built-in ones entirely; copy those you want from config/default.toml",
+                self.inputs.len()
+            )]
+        };
+        (typos, empty)
+    }
+
     /// The compiled-in default (identical to `config/default.toml`).
     pub fn builtin_default() -> Result<Config, ConfigError> {
         Self::from_toml_str(DEFAULT_TOML, "built-in default config")
@@ -668,6 +759,7 @@ impl Config {
                     input.format
                 ));
             }
+            input_kind_matches(input).map_err(|e| format!("{name}: {e}"))?;
             if !(input.rate_hz.is_finite() && input.rate_hz > 0.0 && input.rate_hz <= 10_000.0) {
                 return Err(format!(
                     "{name}: `rate_hz` = {} must be in (0, 10000]",
@@ -842,7 +934,12 @@ impl Endpoint {
             Ok(rest.to_string())
         };
         match scheme {
-            "udpout" | "udp" => Ok(Endpoint::UdpOut(host_port(rest)?)),
+            "udpout" => Ok(Endpoint::UdpOut(host_port(rest)?)),
+            // pymavlink and MAVProxy read `udp:` as listen, MAVSDK and QGC as send: a
+            // guess either way loses the link without a word.
+            "udp" => Err(format!(
+                "MAVLink endpoint {s:?}: `udp:` means listen to pymavlink and MAVProxy but send to others; write udpin:{rest} to listen or udpout:{rest} to send"
+            )),
             "udpin" => Ok(Endpoint::UdpIn(host_port(rest)?)),
             "tcpout" | "tcp" => Ok(Endpoint::TcpOut(host_port(rest)?)),
             "serial" => {
@@ -892,6 +989,11 @@ mod tests {
                 baud: 921_600
             })
         );
+        let e = Endpoint::parse("udp:127.0.0.1:14550").expect_err("ambiguous");
+        assert!(
+            e.contains("udpin:127.0.0.1:14550") && e.contains("udpout:127.0.0.1:14550"),
+            "{e}"
+        );
         for bad in [
             "udpout:1.2.3.4",
             "udpout::14540",
@@ -921,6 +1023,95 @@ mod tests {
         }
         assert!(keys.iter().any(|k| k.starts_with("mavlink/")));
         assert_eq!(c.mavlink.component_id, 197);
+    }
+
+    /// Issue 35, item 4: an input whose message type gives another kind of sample than
+    /// its `kind` (every message would be ignored, the input "no data" forever) or whose
+    /// key names no MAVLink message is refused by check-config, saying what to change.
+    #[test]
+    fn an_input_whose_messages_are_not_its_kind_is_refused() {
+        let input = |kind: &str, key: &str, format: &str, ty: &str| {
+            format!(
+                "[[inputs]]\nid = \"x\"\nkind = \"{kind}\"\nkey = \"{key}\"\nformat = \"{format}\"\n{ty}rate_hz = 10\n"
+            )
+        };
+        let refused = |toml: String, says: &[&str]| {
+            let e = Config::from_toml_str(&toml, "t.toml")
+                .unwrap_err()
+                .to_string();
+            for s in says {
+                assert!(e.contains(s), "{e}");
+            }
+        };
+        refused(
+            input(
+                "imu",
+                "gps/fix",
+                "ros2",
+                "type = \"sensor_msgs/msg/NavSatFix\"\n",
+            ),
+            &[
+                "input `x`",
+                "NavSatFix gives gnss samples",
+                "kind = \"gnss\"",
+            ],
+        );
+        refused(
+            input(
+                "attitude",
+                "mavlink/*/*/ATTITUDE_QUATERNON",
+                "mavlink-json",
+                "",
+            ),
+            &["no MAVLink message", "did you mean ATTITUDE_QUATERNION?"],
+        );
+        refused(
+            input("attitude", "mavlink/*/*/SYS_STATUS", "mavlink-json", ""),
+            &[
+                "carries nothing skyfuse reads",
+                "ATTITUDE, ATTITUDE_QUATERNION",
+            ],
+        );
+        refused(
+            input("baro", "mavlink/*/*/HIGHRES_IMU", "mavlink-json", ""),
+            &["HIGHRES_IMU gives imu samples"],
+        );
+        // What matches is accepted; a wildcard or a raw stream key names no message.
+        for ok in [
+            input(
+                "gnss",
+                "gps/fix",
+                "ros2",
+                "type = \"sensor_msgs/msg/NavSatFix\"\n",
+            ),
+            input("baro", "mavlink/*/*/SCALED_PRESSURE2", "mavlink-json", ""),
+            input("imu", "mavlink/**", "mavlink-json", ""),
+            input("flow", "mavlink_raw/out", "mavlink-raw", ""),
+        ] {
+            Config::from_toml_str(&ok, "t.toml").unwrap_or_else(|e| panic!("{ok}: {e}"));
+        }
+    }
+
+    /// Issue 35, item 5: a config with no input (its `[[inputs]]` replace the built-in
+    /// ones) and an `[estimator.sources.ID]` naming no input are what check-config and
+    /// `run` report, not "ok (0 inputs)".
+    #[test]
+    fn a_vehicle_with_no_input_or_a_misspelt_source_is_reported() {
+        let only_service = Config::from_toml_str("[service]\n", "t.toml").expect("parses");
+        let (typos, empty) = only_service.vehicle_problems();
+        assert!(typos.is_empty());
+        assert!(empty[0].contains("replace the built-in ones"), "{empty:?}");
+        let mut c = Config::builtin_default().expect("default");
+        assert_eq!(c.vehicle_problems(), (vec![], vec![]));
+        c.estimator
+            .sources
+            .insert("t256".into(), Default::default());
+        let (typos, _) = c.vehicle_problems();
+        assert!(
+            typos[0].contains("[estimator.sources.t256] names no input")
+                && typos[0].contains("t265"),
+            "{typos:?}"
+        );
     }
 
     #[test]

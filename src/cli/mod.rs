@@ -430,6 +430,28 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
         Command::Healthcheck { .. } => Err("healthcheck runs before the runtime".into()),
         Command::CheckConfig { file } => {
             let c = Config::load(Some(&file), env_vars()).map_err(|e| e.to_string())?;
+            let (typos, empty) = c.vehicle_problems();
+            if let Some(first) = typos.iter().chain(&empty).next() {
+                let more = typos.len() + empty.len() - 1;
+                return Err(format!(
+                    "{}: {first}{}",
+                    file.display(),
+                    if more > 0 {
+                        format!(
+                            " (and {more} more: {})",
+                            typos
+                                .iter()
+                                .chain(&empty)
+                                .skip(1)
+                                .cloned()
+                                .collect::<Vec<_>>()
+                                .join("; ")
+                        )
+                    } else {
+                        String::new()
+                    }
+                ));
+            }
             println!(
                 "{}: ok ({} inputs, {} enabled)",
                 file.display(),
@@ -458,6 +480,13 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             let mut c = load(config.as_deref(), &net)?;
             record.apply(&mut c)?;
             add_mavlink(&mut c, &mavlink)?;
+            let (typos, empty) = c.vehicle_problems();
+            if let Some(t) = typos.first() {
+                return Err(t.clone());
+            }
+            for e in empty {
+                tracing::warn!("{e}");
+            }
             serve(c, Serve::Vehicle).await
         }
         Command::Demo {

@@ -13,7 +13,7 @@ use super::fields::Fields;
 use crate::codec::error::{in_range, DecodeError};
 use crate::sample::{
     frames, Attitude, AutopilotEstimate, GnssFix, GnssFixType, Imu, LandedState, Micros, Odometry,
-    OpticalFlow, Range, SensorData, Tof, VehicleState,
+    OpticalFlow, Range, SensorData, SensorKind, Tof, VehicleState,
 };
 use ::mavlink::dialects::common::{
     self, GpsFixType, HighresImuUpdatedFlags, MavAutopilot, MavLandedState, MavModeFlag,
@@ -69,6 +69,24 @@ impl SensorMsg {
         SensorMsg::ScaledPressure2,
         SensorMsg::ScaledPressure3,
     ];
+
+    /// The kind of sample the message becomes.
+    pub fn kind(self) -> SensorKind {
+        use SensorMsg as M;
+        match self {
+            M::HighresImu | M::ScaledImu | M::RawImu => SensorKind::Imu,
+            M::Attitude | M::AttitudeQuaternion => SensorKind::Attitude,
+            M::OpticalFlow | M::OpticalFlowRad => SensorKind::Flow,
+            M::DistanceSensor => SensorKind::Range,
+            M::GpsRawInt => SensorKind::Gnss,
+            M::GlobalPositionInt | M::LocalPositionNed | M::SimState => {
+                SensorKind::AutopilotEstimate
+            }
+            M::Odometry => SensorKind::Odometry,
+            M::Heartbeat | M::ExtendedSysState => SensorKind::VehicleState,
+            M::ScaledPressure | M::ScaledPressure2 | M::ScaledPressure3 => SensorKind::Baro,
+        }
+    }
 
     /// (name, id) from rust-mavlink's definitions, so no number is typed twice.
     fn meta(self) -> (&'static str, u32) {

@@ -90,6 +90,53 @@ pub fn decode_raw(payload: &[u8], out: &mut Vec<Decoded>) -> Result<(), DecodeEr
 /// [`decode_raw`] keeping only the messages whose name `keep` accepts: a raw stream
 /// carries every message, and an input usually wants one (HIGHRES_IMU, not also
 /// SCALED_IMU and RAW_IMU of other IMUs), as a JSON input picks one by key.
+/// What a MAVLink message named `name` becomes: `Ok(Some(kind))` for a message skyfuse
+/// reads, `Ok(None)` for one of the dialect it does not, `Err` for a name that is no
+/// MAVLink message at all (a typo in a key).
+pub fn message_kind(name: &str) -> Result<Option<crate::sample::SensorKind>, ()> {
+    if let Some(m) = map::SensorMsg::ALL.iter().find(|m| m.name() == name) {
+        return Ok(Some(m.kind()));
+    }
+    match <MavMessage as ::mavlink::Message>::message_id_from_name(name) {
+        Some(_) => Ok(None),
+        None => Err(()),
+    }
+}
+
+/// The messages skyfuse reads as samples of `kind`.
+pub fn messages_of_kind(kind: crate::sample::SensorKind) -> Vec<&'static str> {
+    map::SensorMsg::ALL
+        .iter()
+        .filter(|m| m.kind() == kind)
+        .map(|m| m.name())
+        .collect()
+}
+
+/// The message skyfuse reads whose name is nearest `name` (at most 3 edits), for a
+/// typo's hint.
+pub fn closest_message(name: &str) -> Option<&'static str> {
+    fn edits(a: &str, b: &str) -> usize {
+        let b: Vec<char> = b.chars().collect();
+        let mut row: Vec<usize> = (0..=b.len()).collect();
+        for (i, ca) in a.chars().enumerate() {
+            let mut prev = row[0];
+            row[0] = i + 1;
+            for (j, cb) in b.iter().enumerate() {
+                let cur = row[j + 1];
+                row[j + 1] = (prev + usize::from(ca != *cb)).min(row[j] + 1).min(cur + 1);
+                prev = cur;
+            }
+        }
+        row[b.len()]
+    }
+    map::SensorMsg::ALL
+        .iter()
+        .map(|m| (edits(name, m.name()), m.name()))
+        .filter(|(d, _)| *d <= 3)
+        .min()
+        .map(|(_, n)| n)
+}
+
 pub fn decode_raw_filtered(
     payload: &[u8],
     keep: &dyn Fn(&str) -> bool,

@@ -53,6 +53,21 @@ impl RosType {
         RosType::PointStamped,
     ];
 
+    /// The kind of sample the message becomes.
+    pub fn kind(self) -> crate::sample::SensorKind {
+        use crate::sample::SensorKind as K;
+        match self {
+            RosType::NavSatFix => K::Gnss,
+            RosType::Imu => K::Imu,
+            RosType::Range => K::Range,
+            RosType::Odometry
+            | RosType::PoseStamped
+            | RosType::PoseWithCovarianceStamped
+            | RosType::PointStamped => K::Odometry,
+            RosType::FlowTof => K::Flow,
+        }
+    }
+
     /// From a ROS 2 (`sensor_msgs/msg/Imu`) or ROS 1 (`sensor_msgs/Imu`) type name.
     pub fn from_name(s: &str) -> Option<RosType> {
         RosType::ALL
