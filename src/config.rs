@@ -503,10 +503,9 @@ impl InputConfig {
 fn input_kind_matches(input: &InputConfig) -> Result<(), String> {
     let wants = input.kind;
     let gives = match input.format {
-        Format::Ros2 | Format::Ros1 => match input.ros_type {
-            Some(t) => Some((t.ros2_name().to_string(), t.kind())),
-            None => None,
-        },
+        Format::Ros2 | Format::Ros1 => input
+            .ros_type
+            .map(|t| (t.ros2_name().to_string(), t.kind())),
         Format::MavlinkJson | Format::MavlinkRaw => {
             let last = input.key.rsplit('/').next().unwrap_or_default();
             let is_name = !last.is_empty()
@@ -517,9 +516,10 @@ fn input_kind_matches(input: &InputConfig) -> Result<(), String> {
             if !is_name {
                 None
             } else {
+                use crate::codec::mavlink::MessageKind;
                 match crate::codec::mavlink::message_kind(last) {
-                    Ok(Some(k)) => Some((last.to_string(), k)),
-                    Ok(None) => {
+                    MessageKind::Read(k) => Some((last.to_string(), k)),
+                    MessageKind::NotRead => {
                         return Err(format!(
                             "`key` {:?} names MAVLink {last}, which carries nothing skyfuse reads (its messages would all be ignored); the {} messages are {}",
                             input.key,
@@ -527,7 +527,7 @@ fn input_kind_matches(input: &InputConfig) -> Result<(), String> {
                             crate::codec::mavlink::messages_of_kind(wants).join(", ")
                         ))
                     }
-                    Err(()) => {
+                    MessageKind::Unknown => {
                         let near = crate::codec::mavlink::closest_message(last)
                             .map(|m| format!(" (did you mean {m}?)"))
                             .unwrap_or_default();

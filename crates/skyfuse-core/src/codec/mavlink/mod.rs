@@ -90,16 +90,25 @@ pub fn decode_raw(payload: &[u8], out: &mut Vec<Decoded>) -> Result<(), DecodeEr
 /// [`decode_raw`] keeping only the messages whose name `keep` accepts: a raw stream
 /// carries every message, and an input usually wants one (HIGHRES_IMU, not also
 /// SCALED_IMU and RAW_IMU of other IMUs), as a JSON input picks one by key.
-/// What a MAVLink message named `name` becomes: `Ok(Some(kind))` for a message skyfuse
-/// reads, `Ok(None)` for one of the dialect it does not, `Err` for a name that is no
-/// MAVLink message at all (a typo in a key).
-pub fn message_kind(name: &str) -> Result<Option<crate::sample::SensorKind>, ()> {
+/// What a MAVLink message name is to skyfuse.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MessageKind {
+    /// A message skyfuse reads, as samples of this kind.
+    Read(crate::sample::SensorKind),
+    /// A message of the dialect skyfuse does not read.
+    NotRead,
+    /// No MAVLink message at all (a typo in a key).
+    Unknown,
+}
+
+/// What a MAVLink message named `name` becomes.
+pub fn message_kind(name: &str) -> MessageKind {
     if let Some(m) = map::SensorMsg::ALL.iter().find(|m| m.name() == name) {
-        return Ok(Some(m.kind()));
+        return MessageKind::Read(m.kind());
     }
     match <MavMessage as ::mavlink::Message>::message_id_from_name(name) {
-        Some(_) => Ok(None),
-        None => Err(()),
+        Some(_) => MessageKind::NotRead,
+        None => MessageKind::Unknown,
     }
 }
 
