@@ -12,6 +12,7 @@
 
 use super::sensors::{HOME_ALT, HOME_LAT, HOME_LON};
 use super::truth::TruthState;
+use super::ulog::put_f32s;
 use super::SimEvent;
 use crate::geo::LocalEnu;
 use crate::sample::{frames, GnssFixType, SensorData};
@@ -346,12 +347,6 @@ pub fn write_flight(
         w.sample(t, &e.data)?;
     }
     w.finish()
-}
-
-fn put_f32s(b: &mut Vec<u8>, v: &[f64]) {
-    for x in v {
-        b.extend_from_slice(&(*x as f32).to_le_bytes());
-    }
 }
 
 /// `c` fields: hundredths in an i16.

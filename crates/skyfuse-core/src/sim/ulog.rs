@@ -313,7 +313,8 @@ fn put_u64(b: &mut Vec<u8>, v: u64) {
     b.extend_from_slice(&v.to_le_bytes());
 }
 
-fn put_f32s(b: &mut Vec<u8>, v: &[f64]) {
+/// Little-endian f32s (both simulated logs' floats).
+pub(super) fn put_f32s(b: &mut Vec<u8>, v: &[f64]) {
     for x in v {
         b.extend_from_slice(&(*x as f32).to_le_bytes());
     }
