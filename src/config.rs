@@ -553,6 +553,22 @@ fn input_kind_matches(input: &InputConfig) -> Result<(), String> {
     }
 }
 
+/// A list given a single string by an environment variable: say how a list is written.
+fn with_list_hint(message: String, origin: &str) -> String {
+    if !(message.contains("expected a sequence") && origin.contains("with overrides")) {
+        return message;
+    }
+    let value = message
+        .split('"')
+        .nth(1)
+        .unwrap_or("tcp/192.168.1.10:7447")
+        .to_string();
+    format!(
+        "{} (an environment variable gives a list as TOML: '[\"{value}\"]')",
+        message.trim_end()
+    )
+}
+
 impl Config {
     /// What makes this config a vehicle that fuses nothing, or tunes what is not there
     /// (issue 35, item 5): no input enabled (a config's `[[inputs]]` replace the
@@ -615,12 +631,34 @@ impl Config {
                 }
             }
         }
+        // Each input alone first: a serde error inside the array does not say which of
+        // the inputs it is in.
+        if let Some(inputs) = value.get("inputs").and_then(|v| v.as_array()) {
+            for (i, input) in inputs.iter().enumerate() {
+                if let Err(e) = input.clone().try_into::<InputConfig>() {
+                    let id = input
+                        .get("id")
+                        .and_then(|v| v.as_str())
+                        .map(|id| format!(", id = {id:?}"))
+                        .unwrap_or_default();
+                    return Err(ConfigError::Parse {
+                        origin: origin.to_string(),
+                        message: format!(
+                            "[[inputs]] number {} of {}{id}: {}",
+                            i + 1,
+                            inputs.len(),
+                            e.to_string().trim_end()
+                        ),
+                    });
+                }
+            }
+        }
         let mut cfg: Config =
             value
                 .try_into()
                 .map_err(|e: toml::de::Error| ConfigError::Parse {
                     origin: origin.to_string(),
-                    message: e.to_string(),
+                    message: with_list_hint(e.to_string(), origin),
                 })?;
         for i in auto {
             if let Some(input) = cfg.inputs.get_mut(i) {
@@ -1114,6 +1152,27 @@ mod tests {
         );
     }
 
+    /// Issue 35, item 8: a list set from the environment with a bare string says how a
+    /// list is written there.
+    #[test]
+    fn an_environment_list_given_a_string_says_how_to_write_one() {
+        let err = Config::load(
+            None,
+            env(&[("SKYFUSE__ZENOH__CONNECT", "tcp/127.0.0.1:7447")]),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("SKYFUSE__ZENOH__CONNECT") && err.contains("'[\"tcp/127.0.0.1:7447\"]'"),
+            "{err}"
+        );
+        let ok = Config::load(
+            None,
+            env(&[("SKYFUSE__ZENOH__CONNECT", "[\"tcp/127.0.0.1:7447\"]")]),
+        );
+        assert!(ok.is_ok(), "{ok:?}");
+    }
+
     #[test]
     fn unknown_key_is_named() {
         let err = Config::from_toml_str("[zenoh]\nmode = \"peer\"\nlisten_to = []\n", "test.toml")
@@ -1128,6 +1187,14 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(err.contains("rat_hz"), "{err}");
+        // Which input (issue 35, item 8): the second of two, by number and id.
+        let two = "[[inputs]]\nid=\"a\"\nkind=\"imu\"\nkey=\"k\"\nformat=\"json\"\nrate_hz=1\n\
+                   [[inputs]]\nid=\"b\"\nkind=\"imu\"\nkey=\"k2\"\nformat=\"json\"\nrat_hz=2\n";
+        let err = Config::from_toml_str(two, "t").unwrap_err().to_string();
+        assert!(
+            err.contains("[[inputs]] number 2 of 2, id = \"b\"") && err.contains("rat_hz"),
+            "{err}"
+        );
     }
 
     #[test]

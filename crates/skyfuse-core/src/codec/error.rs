@@ -4,6 +4,17 @@
 
 use thiserror::Error;
 
+/// What a payload that is not CDR looks like, from its first two bytes: the hint a
+/// user needs when a JSON publisher is wired to a ROS 2 input.
+fn looks_like(head: &[u8; 2]) -> &'static str {
+    match head {
+        [b'{', b'"' | b' ' | b'\n' | b'}'] | [b'[', _] => {
+            ": it looks like JSON (a JSON publisher's input is format = \"json\" or \"mavlink-json\")"
+        }
+        _ => "",
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum DecodeError {
     #[error("payload truncated: needed {needed} bytes at offset {offset}, payload has {len}")]
@@ -13,7 +24,9 @@ pub enum DecodeError {
         len: usize,
     },
     #[error(
-        "bad CDR encapsulation header {0:02x?} (expected 00 01 little-endian or 00 00 big-endian)"
+        "bad CDR encapsulation header {head:02x?} (expected 00 01 little-endian or 00 00 big-endian){hint}",
+        head = .0,
+        hint = looks_like(.0)
     )]
     BadEncapsulation([u8; 2]),
     #[error("{field}: string is not valid UTF-8 or not NUL-terminated")]

@@ -1033,6 +1033,16 @@ fn bad_encapsulation_and_strings() {
             Err(DecodeError::BadEncapsulation(rep))
         );
     }
+    // JSON sent to a ROS 2 input (issue 35, item 8): the error says what it looks like.
+    let e = PointStamped::from_cdr(br#"{"x": 1.0, "y": 2.0, "z": 0.5}"#).unwrap_err();
+    let said = e.to_string();
+    assert!(
+        said.contains("7b, 22") && said.contains("looks like JSON"),
+        "{said}"
+    );
+    assert!(!DecodeError::BadEncapsulation([0, 3])
+        .to_string()
+        .contains("JSON"));
     // Encapsulation 0..4, stamp 4..12, length 12..16, "abc\0" 16..20: no NUL terminator.
     good[19] = b'd';
     assert_eq!(
