@@ -584,7 +584,12 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             ..
         } => {
             let scn = scenario_at(&scenario, imu_hz)?;
-            let c = load(config.as_deref(), &net)?;
+            let mut c = load(config.as_deref(), &net)?;
+            // Told where to connect, the simulator needs no listener of its own: the
+            // config's (tcp/0.0.0.0:7447) would collide with the skyfuse it feeds.
+            if !net.connect.is_empty() && net.listen.is_empty() {
+                c.zenoh.listen.clear();
+            }
             let mut shutdown = Box::pin(app::shutdown_signal());
             let Some(session) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
                 return Ok(());

@@ -101,8 +101,35 @@ pub async fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, ZenohErro
         mode: cfg.mode,
         listen: cfg.listen.clone(),
         connect: cfg.connect.clone(),
-        message: e.to_string(),
+        message: open_error_message(&e.to_string()),
     })
+}
+
+/// Zenoh's error, without the source paths it carries (` at /…/registry/…/x.rs:12.`),
+/// and with what to do about the usual causes.
+fn open_error_message(raw: &str) -> String {
+    let mut out = String::with_capacity(raw.len());
+    let mut rest = raw;
+    while let Some(i) = rest.find(" at /") {
+        out.push_str(&rest[..i]);
+        let tail = &rest[i + 4..];
+        // The path runs to the first character a path here does not hold.
+        let end = tail
+            .find(|c: char| c.is_whitespace() || c == ']' || c == ',')
+            .unwrap_or(tail.len());
+        let path = &tail[..end];
+        if !path.contains(".rs") {
+            out.push_str(&rest[i..i + 4 + end]);
+        }
+        rest = &tail[end..];
+    }
+    out.push_str(rest);
+    if out.contains("Address already in use") {
+        out.push_str(
+            ": another process listens there (another skyfuse, zenohd, mavlink-server?); listen elsewhere (--listen tcp/0.0.0.0:7448) or not at all ([zenoh] listen = [], SKYFUSE__ZENOH__LISTEN='[]') and --connect to it",
+        );
+    }
+    out
 }
 
 /// Where the subscribers' samples go, on Zenoh's thread.
@@ -155,4 +182,22 @@ pub async fn subscribe_inputs(
         }
     }
     Ok(subs)
+}
+
+#[cfg(test)]
+mod open_error_tests {
+    use super::*;
+
+    #[test]
+    fn an_open_error_loses_its_source_paths_and_says_what_to_do() {
+        let raw = "Can not create a new TCP listener bound to tcp/0.0.0.0:7447: [0.0.0.0:7447: Address already in use (os error 98) at /root/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/zenoh-link-tcp-1.10.2/src/unicast.rs:361.] at /root/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/zenoh-1.10.2/src/net/runtime/orchestrator.rs:420.";
+        let m = open_error_message(raw);
+        assert!(!m.contains("registry") && !m.contains(".rs"), "{m}");
+        assert!(m.contains("Address already in use (os error 98)"), "{m}");
+        assert!(
+            m.contains("--listen tcp/0.0.0.0:7448") && m.contains("listen = []"),
+            "{m}"
+        );
+        assert_eq!(open_error_message("no route"), "no route");
+    }
 }
