@@ -250,6 +250,26 @@ fn sigterm_while_waiting_for_the_router_exits_cleanly() {
     let mut svc = client_of(free_port());
     std::thread::sleep(Duration::from_millis(1500));
     assert!(svc.running(), "{}", svc.log_text());
+    // Issue 35, item 9: the HTTP port answers while the router is away (it held
+    // connections unanswered, and the container's healthcheck said "Resource
+    // temporarily unavailable"): 503 and why, to a browser and to `skyfuse healthcheck`.
+    let (code, body) = common::http_get(svc.http_port, "/healthz").expect("an answer");
+    assert_eq!(code, 503, "{body}");
+    assert!(body.contains("waiting for the Zenoh session"), "{body}");
+    let hc = std::process::Command::new(env!("CARGO_BIN_EXE_skyfuse"))
+        .args([
+            "healthcheck",
+            "--http",
+            &format!("127.0.0.1:{}", svc.http_port),
+        ])
+        .output()
+        .expect("healthcheck");
+    assert_eq!(hc.status.code(), Some(1));
+    let said = String::from_utf8_lossy(&hc.stderr);
+    assert!(
+        said.contains("answered 503: starting: waiting for the Zenoh session"),
+        "{said}"
+    );
     let (status, took) = svc.terminate();
     assert!(status.success(), "{status}: {}", svc.log_text());
     assert!(took < Duration::from_secs(2), "stop took {took:?}");

@@ -623,7 +623,20 @@ async fn serve(c: Config, what: Serve) -> Result<(), String> {
         .await
         .map_err(|e| format!("cannot listen for HTTP on {}: {e}", c.http.bind))?;
     let mut shutdown = Box::pin(app::shutdown_signal());
-    let Some(zenoh) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
+    // Until the session opens (a client waiting for its router), the HTTP port says so
+    // instead of holding connections unanswered.
+    let waiting = format!(
+        "starting: waiting for the Zenoh session ({:?} mode, connect {:?})\n",
+        c.zenoh.mode, c.zenoh.connect
+    );
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let answering = tokio::spawn(answer_while_starting(http, waiting, stopped));
+    let opened = open_zenoh(&c.zenoh, &mut shutdown).await;
+    let _ = stop.send(());
+    let http = answering
+        .await
+        .map_err(|e| format!("the HTTP port while starting: {e}"))?;
+    let Some(zenoh) = opened? else {
         return Ok(());
     };
     let listeners = Listeners { http, zenoh };
@@ -656,6 +669,40 @@ async fn open_zenoh(
         _ = shutdown => {
             tracing::info!("stopped before the Zenoh session opened");
             Ok(None)
+        }
+    }
+}
+
+/// Answers every HTTP request on `listener` with 503 and `text` until `stop`, then
+/// gives the listener back for the service.
+async fn answer_while_starting(
+    listener: tokio::net::TcpListener,
+    text: String,
+    mut stop: tokio::sync::oneshot::Receiver<()>,
+) -> tokio::net::TcpListener {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let answer = format!(
+        "HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: {}\r\nConnection: close\r\nRetry-After: 1\r\n\r\n{text}",
+        text.len()
+    );
+    loop {
+        tokio::select! {
+            _ = &mut stop => return listener,
+            accepted = listener.accept() => {
+                let Ok((mut conn, _)) = accepted else { continue };
+                let answer = answer.clone();
+                tokio::spawn(async move {
+                    // Read what the request sent first (the answer is the same for all).
+                    let mut buf = [0u8; 2048];
+                    let _ = tokio::time::timeout(
+                        std::time::Duration::from_millis(200),
+                        conn.read(&mut buf),
+                    )
+                    .await;
+                    let _ = conn.write_all(answer.as_bytes()).await;
+                    let _ = conn.shutdown().await;
+                });
+            }
         }
     }
 }
