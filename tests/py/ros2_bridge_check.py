@@ -79,6 +79,8 @@ GPS_DELAY = 0.1         # s between the fix and its publication
 GPS_NOISE = 0.1         # m white, plus a slow error:
 GPS_SLOW_STD = 0.3      # m
 RATES = {"imu": 200.0, "odom": 100.0, "gps": 10.0, "flow": 50.0}
+# oriUAV_t265 (the camera's position in the fused frame) against the pose, m RMS.
+DEBUG_T265_TOL_M = 0.25
 
 TOPICS = {  # ours: ROS topic, ROS type, skyfuse input id
     "gps": ("/gps/fix", "sensor_msgs/msg/NavSatFix", "gps"),
@@ -877,7 +879,11 @@ def main_check(a):
             out["debug"][topic] = {"n": len(pts), "horizontal_vs_pose_rms_m": r4(rms(diffs)),
                                    "horizontal_vs_pose_max_m": r4(max(diffs) if diffs else float("nan"))}
             expect(len(diffs) > 5, f"{topic}: only {len(diffs)} points next to poses")
-            expect(rms(diffs) < (a.tol_m if topic == "oriUAV_t265" else 1.5),
+            # The aligned camera position is not the pose: GNSS pulls the pose and the
+            # camera's drift states take the difference (0.01-0.12 m here, more when the
+            # GPS samples arrive late under load). What this checks is frame and units:
+            # a wrong axis or scale is metres off.
+            expect(rms(diffs) < (DEBUG_T265_TOL_M if topic == "oriUAV_t265" else 1.5),
                    f"{topic}: {rms(diffs):.3f} m RMS from the pose")
 
         out["early_reader_first_pose_after_publish_s"] = r4(
