@@ -508,11 +508,10 @@ fn input_kind_matches(input: &InputConfig) -> Result<(), String> {
             .map(|t| (t.ros2_name().to_string(), t.kind())),
         Format::MavlinkJson | Format::MavlinkRaw => {
             let last = input.key.rsplit('/').next().unwrap_or_default();
-            let is_name = !last.is_empty()
+            let is_name = last.starts_with(|c: char| c.is_ascii_uppercase())
                 && last
                     .chars()
-                    .all(|c| c.is_ascii_uppercase() || c.is_ascii_digit() || c == '_')
-                && last.chars().next().is_some_and(|c| c.is_ascii_uppercase());
+                    .all(|c| c.is_ascii_uppercase() || c.is_ascii_digit() || c == '_');
             if !is_name {
                 None
             } else {
@@ -551,6 +550,26 @@ fn input_kind_matches(input: &InputConfig) -> Result<(), String> {
         )),
         _ => Ok(()),
     }
+}
+
+/// The first `[[inputs]]` entry that does not parse on its own, named by number and
+/// id: a serde error inside the array does not say which of the inputs it is in.
+fn input_at_fault(value: &toml::Value) -> Option<String> {
+    let inputs = value.get("inputs")?.as_array()?;
+    inputs.iter().enumerate().find_map(|(i, input)| {
+        let e = input.clone().try_into::<InputConfig>().err()?;
+        let id = input
+            .get("id")
+            .and_then(|v| v.as_str())
+            .map(|id| format!(", id = {id:?}"))
+            .unwrap_or_default();
+        Some(format!(
+            "[[inputs]] number {} of {}{id}: {}",
+            i + 1,
+            inputs.len(),
+            e.to_string().trim_end()
+        ))
+    })
 }
 
 /// A list given a single string by an environment variable: say how a list is written.
@@ -631,34 +650,14 @@ impl Config {
                 }
             }
         }
-        // Each input alone first: a serde error inside the array does not say which of
-        // the inputs it is in.
-        if let Some(inputs) = value.get("inputs").and_then(|v| v.as_array()) {
-            for (i, input) in inputs.iter().enumerate() {
-                if let Err(e) = input.clone().try_into::<InputConfig>() {
-                    let id = input
-                        .get("id")
-                        .and_then(|v| v.as_str())
-                        .map(|id| format!(", id = {id:?}"))
-                        .unwrap_or_default();
-                    return Err(ConfigError::Parse {
-                        origin: origin.to_string(),
-                        message: format!(
-                            "[[inputs]] number {} of {}{id}: {}",
-                            i + 1,
-                            inputs.len(),
-                            e.to_string().trim_end()
-                        ),
-                    });
-                }
-            }
-        }
         let mut cfg: Config =
             value
+                .clone()
                 .try_into()
                 .map_err(|e: toml::de::Error| ConfigError::Parse {
                     origin: origin.to_string(),
-                    message: with_list_hint(e.to_string(), origin),
+                    message: input_at_fault(&value)
+                        .unwrap_or_else(|| with_list_hint(e.to_string(), origin)),
                 })?;
         for i in auto {
             if let Some(input) = cfg.inputs.get_mut(i) {

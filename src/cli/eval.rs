@@ -31,6 +31,8 @@ pub struct Row {
     /// The autopilot's own estimate(s) where logged, RMSE m.
     pub autopilot: Vec<(String, f64)>,
     pub valid_fraction: f64,
+    /// The valid poses kept their σ ([`offline::Consistency::kept`]).
+    pub consistent: bool,
     pub within_3_sigma: Option<[f64; 3]>,
     pub beyond_5_sigma: Option<usize>,
     pub nees_mean: Option<f64>,
@@ -49,6 +51,10 @@ impl Row {
             dead_reckoning: vec![],
             autopilot: vec![],
             valid_fraction: s.availability.valid_fraction,
+            consistent: s
+                .consistency
+                .as_ref()
+                .is_some_and(offline::Consistency::kept),
             within_3_sigma: s.consistency.as_ref().map(|c| c.within_3_sigma),
             beyond_5_sigma: s.consistency.as_ref().map(|c| c.beyond_5_sigma),
             nees_mean: s.consistency.as_ref().map(|c| c.nees_mean),
@@ -70,13 +76,6 @@ impl Row {
             }
         }
         row
-    }
-
-    /// The promise: at least 99 % within 3σ on every axis, none beyond 5σ.
-    pub fn consistent(&self) -> bool {
-        self.within_3_sigma
-            .is_some_and(|w| w.iter().all(|f| *f >= 0.99))
-            && self.beyond_5_sigma == Some(0)
     }
 
     /// Fused no worse than every comparison in the row.
@@ -128,7 +127,7 @@ pub fn find_flights(path: &Path) -> Vec<PathBuf> {
     out
 }
 
-/// A short, unique name for a flight: its path relative to the common root.
+/// A short name for a flight: its path as given, `/` as `_`.
 fn flight_name(path: &Path) -> String {
     let s = path.to_string_lossy();
     s.trim_start_matches("./")
@@ -293,7 +292,7 @@ pub(super) fn eval(
     std::fs::write(out.join("eval.json"), json).map_err(|e| e.to_string())?;
     let broken: Vec<String> = rows
         .iter()
-        .filter(|r| !r.consistent() || !r.fused_best())
+        .filter(|r| !r.consistent || !r.fused_best())
         .map(|r| format!("{} ({})", r.flight, r.set))
         .collect();
     println!(
@@ -351,7 +350,7 @@ pub fn markdown(rows: &[Row]) -> String {
             r.beyond_5_sigma.map_or("-".into(), |n| n.to_string()),
             m(r.nees_mean),
             if r.fused_best() { "yes" } else { "no" },
-            if r.consistent() { "yes" } else { "no" },
+            if r.consistent { "yes" } else { "no" },
         ));
     }
     t

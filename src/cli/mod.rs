@@ -431,26 +431,9 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
         Command::CheckConfig { file } => {
             let c = Config::load(Some(&file), env_vars()).map_err(|e| e.to_string())?;
             let (typos, empty) = c.vehicle_problems();
-            if let Some(first) = typos.iter().chain(&empty).next() {
-                let more = typos.len() + empty.len() - 1;
-                return Err(format!(
-                    "{}: {first}{}",
-                    file.display(),
-                    if more > 0 {
-                        format!(
-                            " (and {more} more: {})",
-                            typos
-                                .iter()
-                                .chain(&empty)
-                                .skip(1)
-                                .cloned()
-                                .collect::<Vec<_>>()
-                                .join("; ")
-                        )
-                    } else {
-                        String::new()
-                    }
-                ));
+            if !(typos.is_empty() && empty.is_empty()) {
+                let all: Vec<String> = typos.into_iter().chain(empty).collect();
+                return Err(format!("{}: {}", file.display(), all.join("; ")));
             }
             println!(
                 "{}: ok ({} inputs, {} enabled)",

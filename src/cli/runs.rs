@@ -242,7 +242,6 @@ pub(super) fn offline_sims(
     Ok(())
 }
 
-/// `skyfuse replay`.
 /// A flight log loaded for replay: its samples (or a ULog streamed as the replay reaches
 /// them), the files' time zero, the poses sent live (a skyfuse recording) and the
 /// config the recording was made with.
@@ -351,10 +350,7 @@ pub(super) fn load_flight(c: &Config, path: &std::path::Path) -> Result<Flight, 
     } else {
         // A cut ULog reads as a complete, shorter flight: say so.
         if let Ok(Some(at)) = px4log::ulog_cut_short(path) {
-            tracing::warn!(
-                file = %path.display(),
-                "the file is cut short (not finished?): its last message, at byte {at}, is incomplete; replaying what comes before"
-            );
+            warn_cut_short(path, "message", at);
         }
         // A ULog is streamed where it can be: its samples made as the replay reaches
         // them, never all in memory (an hour of a 1 kHz log is four million).
@@ -378,6 +374,7 @@ pub(super) fn load_flight(c: &Config, path: &std::path::Path) -> Result<Flight, 
     })
 }
 
+/// `skyfuse replay`.
 pub(super) fn replay(
     c: &Config,
     path: &std::path::Path,
@@ -494,7 +491,14 @@ fn print_consistency(summary: &offline::Summary) {
     }
 }
 
-/// What a PX4 log's topics gave, what stood in for absent ones, what is missing.
+/// A log whose end cuts its last `unit` (message, record) in two, at byte `at`.
+fn warn_cut_short(path: &std::path::Path, unit: &str, at: u64) {
+    tracing::warn!(
+        file = %path.display(),
+        "the file is cut short (not finished?): its last {unit}, at byte {at}, is incomplete; replaying what comes before"
+    );
+}
+
 /// Whether `path` begins as a DataFlash log (whatever its name).
 fn starts_as_dataflash(path: &std::path::Path) -> bool {
     let mut head = [0u8; 3];
@@ -516,10 +520,7 @@ fn report_dataflash_read(path: &std::path::Path, log: &crate::replay::dataflash:
     }
     let s = &log.scan;
     if let Some(at) = s.cut_short {
-        tracing::warn!(
-            file = %path.display(),
-            "the file is cut short (not finished?): its last record, at byte {at}, is incomplete; replaying what comes before"
-        );
+        warn_cut_short(path, "record", at);
     }
     if s.bad_formats > 0 {
         tracing::warn!(
@@ -537,6 +538,7 @@ fn report_dataflash_read(path: &std::path::Path, log: &crate::replay::dataflash:
     }
 }
 
+/// What a PX4 log's topics gave, what stood in for absent ones, what is missing.
 fn report_px4_read(topics: &[px4log::TopicSummary], stand_ins: &[String], missing: &[String]) {
     for t in topics {
         match &t.first_error {

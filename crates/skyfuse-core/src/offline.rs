@@ -1003,11 +1003,11 @@ pub fn run_replay(
     let window = opts.window;
     let survey = SampleSurvey::of(samples);
     // A name that matches nothing is a typo, not a request to fuse nothing.
-    let listing = |only_positions: bool| {
+    let listing = |keep: &dyn Fn(&SourceSurvey) -> bool| {
         survey
             .sources
             .iter()
-            .filter(|(_, e)| !only_positions || is_position(e.last_kind))
+            .filter(|(_, e)| keep(e))
             .map(|(id, e)| format!("{id} ({})", e.last_kind.as_str()))
             .collect::<Vec<_>>()
             .join(", ")
@@ -1026,7 +1026,7 @@ pub fn run_replay(
         if !unknown.is_empty() {
             return Err(OfflineError::UnknownSources {
                 unknown: unknown.join(","),
-                known: listing(false),
+                known: listing(&|_| true),
             });
         }
     }
@@ -1035,21 +1035,17 @@ pub fn run_replay(
     let reference = if opts.reference.is_empty() {
         auto_reference(&survey).unwrap_or_default()
     } else {
-        let known = survey
+        let Some(e) = survey
             .sources
             .get(&opts.reference)
-            .is_some_and(|e| is_position(e.last_kind));
-        if !known {
+            .filter(|e| is_position(e.last_kind))
+        else {
             return Err(OfflineError::UnknownReference {
                 name: opts.reference.clone(),
-                known: listing(true),
+                known: listing(&|e| is_position(e.last_kind)),
             });
-        }
-        if let Some(e) = survey
-            .sources
-            .get(&opts.reference)
-            .filter(|e| e.positions == 0)
-        {
+        };
+        if e.positions == 0 {
             return Err(OfflineError::ReferenceWithoutPositions {
                 name: opts.reference.clone(),
                 samples: e.count,
@@ -1060,13 +1056,7 @@ pub fn run_replay(
                     SensorKind::Gnss => "the receiver never had a fix",
                     _ => "the kind carries none",
                 },
-                known: survey
-                    .sources
-                    .iter()
-                    .filter(|(_, e)| e.positions > 0)
-                    .map(|(id, e)| format!("{id} ({})", e.last_kind.as_str()))
-                    .collect::<Vec<_>>()
-                    .join(", "),
+                known: listing(&|e| e.positions > 0),
             });
         }
         opts.reference.clone()

@@ -8,7 +8,11 @@
 //! | `mavlink-json`| [`mavlink`]       | bluerobotics mavlink-server `zenoh://` endpoint    |
 //! | `mavlink-raw` | [`mavlink`]       | mavlink-server `zenohraw://`, any raw bridge       |
 //! | `json`        | [`json`]          | hand-written publishers (schema in the README)     |
+//!
+//! [`dataflash`] holds the framing of ArduPilot's log files, shared by their reader
+//! (`replay`) and the simulator's writer.
 
+pub mod dataflash;
 pub mod error;
 pub mod json;
 pub mod mavlink;

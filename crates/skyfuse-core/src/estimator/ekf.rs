@@ -282,6 +282,13 @@ impl Ekf {
                 // A gain that is not optimal (Schmidt's): the full Joseph form, P − K H P
                 // − (K H P)ᵀ + K S Kᵀ, S = L Lᵀ.
                 let l = chol.l();
+                // K L, once (column e at e·n), for K S Kᵀ = (K L)(K L)ᵀ.
+                let mut kl = vec![0.0; n * M];
+                for e in 0..M {
+                    for i in 0..n {
+                        kl[e * n + i] = (0..M).map(|c| k[c * n + i] * l[(c, e)]).sum();
+                    }
+                }
                 let p = self.p.as_mut_slice();
                 for j in 0..n {
                     for i in 0..n {
@@ -290,12 +297,7 @@ impl Ekf {
                             d += k[c * n + i] * pht[c * n + j] + pht[c * n + i] * k[c * n + j];
                         }
                         for e in 0..M {
-                            let (mut kli, mut klj) = (0.0, 0.0);
-                            for c in 0..M {
-                                kli += k[c * n + i] * l[(c, e)];
-                                klj += k[c * n + j] * l[(c, e)];
-                            }
-                            d -= kli * klj;
+                            d -= kl[e * n + i] * kl[e * n + j];
                         }
                         p[j * n + i] -= d;
                     }

@@ -374,6 +374,17 @@ impl Core {
         self.update(t, source, "gnss", &m, ctx);
     }
 
+    /// The IMU's specific force and its variance held for the prediction at `t`, if a
+    /// sample with one is recent enough (`imu_timeout_ms`) to drive it.
+    fn held_imu(&self, t: i64, ctx: &Ctx) -> Option<(Vector3<f64>, f64)> {
+        let timeout = (ctx.cfg.imu_timeout_ms * 1000.0) as i64;
+        self.imu
+            .last
+            .as_ref()
+            .filter(|l| t - l.t <= timeout)
+            .and_then(|l| l.accel.map(|a| (a, l.accel_var)))
+    }
+
     /// Fuse the first `rows` components of a body-frame velocity.
     pub fn fuse_body_velocity(
         &mut self,
@@ -399,13 +410,7 @@ impl Core {
         // IMU: −5 % whatever the sensor's error, the fused track worse than the flow
         // integrated). Otherwise it is a consider state: held, its uncertainty carried
         // into every flow sample and, through the covariance, into the position.
-        let imu_timeout = (cfg.imu_timeout_ms * 1000.0) as i64;
-        let imu_drives = self.att.known()
-            && self
-                .imu
-                .last
-                .as_ref()
-                .is_some_and(|l| l.accel.is_some() && t - l.t <= imu_timeout);
+        let imu_drives = self.att.known() && self.held_imu(t, ctx).is_some();
         let observed = imu_drives || self.other_aiding(t, source, ctx);
         let Some(ekf) = self.ekf.as_mut() else { return };
         // A flow source reads (1 + k)·Rz(ψ) times the body velocity: k its scale error,
@@ -431,8 +436,8 @@ impl Core {
                         let dp = dturn_dp[i][0] * rt[(0, j)] + dturn_dp[i][1] * rt[(1, j)];
                         m.set_jacobian(i, IDX_V + j, (1.0 + k) * dp);
                     }
-                    let dpsi = if i == 0 { -pred.y } else { pred.x };
                     m.set_jacobian(i, si, turned[i]);
+                    let dpsi = if i == 0 { -pred.y } else { pred.x };
                     m.set_jacobian(i, si + 1, (1.0 + k) * dpsi);
                 }
                 if !observed {
@@ -615,14 +620,8 @@ impl Core {
         let dt = (t - t0) as f64 * 1e-6;
         self.pred_t = Some(t);
         let rot = *self.att.q.to_rotation_matrix().matrix();
-        let imu_timeout = (cfg.imu_timeout_ms * 1000.0) as i64;
         let tilt_var = 0.5 * (self.att.cov[(0, 0)] + self.att.cov[(1, 1)]);
-        let held = self
-            .imu
-            .last
-            .as_ref()
-            .filter(|l| t - l.t <= imu_timeout)
-            .and_then(|l| l.accel.map(|a| (a, l.accel_var)));
+        let held = self.held_imu(t, ctx);
         let bias_rw = cfg.accel_bias_rw;
         let drift = |s: &str| {
             // A barometer's offset block is named `baro:<source>`.

@@ -41,11 +41,8 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-const HEAD1: u8 = 0xA3;
-const HEAD2: u8 = 0x95;
-/// The FMT record's own type and length (fixed: the format has to start somewhere).
-pub const FMT_TYPE: u8 = 0x80;
-pub const FMT_LEN: usize = 89;
+use crate::codec::dataflash::{field_size, HEAD1, HEAD2};
+pub use crate::codec::dataflash::{FMT_LEN, FMT_TYPE};
 /// MAV_SENSOR_ORIENTATION PITCH_270: a downward range finder.
 const ORIENT_DOWN: u8 = 25;
 /// RangeFinder::Status::Good in RFND's `Stat`.
@@ -62,19 +59,6 @@ pub enum DataflashError {
     },
     #[error("{}: no DataFlash record found (not an ArduPilot .bin log?)", file.display())]
     NoRecords { file: PathBuf },
-}
-
-/// Byte size of one field of DataFlash type `c`, and whether ArduPilot writes it.
-fn field_size(c: u8) -> Option<usize> {
-    Some(match c {
-        b'b' | b'B' | b'M' => 1,
-        b'h' | b'H' | b'c' | b'C' | b'g' => 2,
-        b'i' | b'I' | b'e' | b'E' | b'f' | b'L' | b'n' => 4,
-        b'q' | b'Q' | b'd' => 8,
-        b'N' => 16,
-        b'Z' | b'a' => 64,
-        _ => return None,
-    })
 }
 
 /// One record type, from its FMT.
@@ -432,7 +416,13 @@ impl Mapper {
                 };
                 match s.data.validate() {
                     Ok(()) => {
-                        *self.messages.entry(name.to_string()).or_default() += 1;
+                        // Counted by name without a new String per record (most are).
+                        match self.messages.get_mut(name) {
+                            Some(n) => *n += 1,
+                            None => {
+                                self.messages.insert(name.to_string(), 1);
+                            }
+                        }
                         self.samples.push(s);
                     }
                     Err(e) => self.unusable(name, e),

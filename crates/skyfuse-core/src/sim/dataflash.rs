@@ -14,14 +14,10 @@ use super::sensors::{HOME_ALT, HOME_LAT, HOME_LON};
 use super::truth::TruthState;
 use super::ulog::put_f32s;
 use super::SimEvent;
+use crate::codec::dataflash::{field_size, FMT_LEN, FMT_TYPE, HEAD1, HEAD2};
 use crate::geo::LocalEnu;
 use crate::sample::{frames, GnssFixType, SensorData};
 use std::io::{self, Write};
-
-/// The FMT record's type and length, as every DataFlash log has them (the reader's
-/// own, `replay::dataflash`, which the round-trip tests hold this writer to).
-const FMT_TYPE: u8 = 0x80;
-const FMT_LEN: usize = 89;
 
 /// The simulator's time 0 in the log's clock (ArduPilot logs start after boot).
 pub const BOOT_OFFSET_US: u64 = 10_000_000;
@@ -142,7 +138,7 @@ impl<W: Write> DataflashWriter<W> {
         }
         self.defined[usize::from(t.id)] = true;
         let mut b = Vec::with_capacity(FMT_LEN);
-        b.extend_from_slice(&[0xA3, 0x95, FMT_TYPE, t.id, record_len(t)]);
+        b.extend_from_slice(&[HEAD1, HEAD2, FMT_TYPE, t.id, record_len(t)]);
         for (text, width) in [(t.name, 4), (t.types, 16), (t.labels, 64)] {
             let mut field = text.as_bytes().to_vec();
             field.resize(width, 0);
@@ -159,7 +155,7 @@ impl<W: Write> DataflashWriter<W> {
         self.define(t)?;
         let mut b = std::mem::take(&mut self.buf);
         b.clear();
-        b.extend_from_slice(&[0xA3, 0x95, t.id]);
+        b.extend_from_slice(&[HEAD1, HEAD2, t.id]);
         b.extend_from_slice(&time_us.to_le_bytes());
         b.extend_from_slice(payload);
         debug_assert_eq!(b.len(), usize::from(record_len(t)), "{}", t.name);
@@ -314,18 +310,7 @@ impl<W: Write> DataflashWriter<W> {
 
 /// A record type's length: the header and its fields.
 fn record_len(t: &RecordType) -> u8 {
-    let fields: usize = t
-        .types
-        .bytes()
-        .map(|c| match c {
-            b'b' | b'B' | b'M' => 1,
-            b'h' | b'H' | b'c' | b'C' => 2,
-            b'i' | b'I' | b'e' | b'E' | b'f' | b'L' | b'n' => 4,
-            b'q' | b'Q' | b'd' => 8,
-            b'N' => 16,
-            _ => 64,
-        })
-        .sum();
+    let fields: usize = t.types.bytes().filter_map(field_size).sum();
     u8::try_from(3 + fields).unwrap_or(u8::MAX)
 }
 
@@ -374,6 +359,11 @@ mod tests {
         for t in TYPES {
             let n = t.types.len();
             assert_eq!(t.labels.split(',').count(), n, "{}", t.name);
+            assert!(
+                t.types.bytes().all(|c| field_size(c).is_some()),
+                "{}",
+                t.name
+            );
             assert!(usize::from(record_len(t)) < 255, "{}", t.name);
             assert!(t.name.len() <= 4 && t.types.len() <= 16 && t.labels.len() <= 64);
         }

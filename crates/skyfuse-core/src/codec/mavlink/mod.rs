@@ -87,9 +87,6 @@ pub fn decode_raw(payload: &[u8], out: &mut Vec<Decoded>) -> Result<(), DecodeEr
     decode_raw_filtered(payload, &|_| true, out)
 }
 
-/// [`decode_raw`] keeping only the messages whose name `keep` accepts: a raw stream
-/// carries every message, and an input usually wants one (HIGHRES_IMU, not also
-/// SCALED_IMU and RAW_IMU of other IMUs), as a JSON input picks one by key.
 /// What a MAVLink message name is to skyfuse.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MessageKind {
@@ -146,6 +143,9 @@ pub fn closest_message(name: &str) -> Option<&'static str> {
         .map(|(_, n)| n)
 }
 
+/// [`decode_raw`] keeping only the messages whose name `keep` accepts: a raw stream
+/// carries every message, and an input usually wants one (HIGHRES_IMU, not also
+/// SCALED_IMU and RAW_IMU of other IMUs), as a JSON input picks one by key.
 pub fn decode_raw_filtered(
     payload: &[u8],
     keep: &dyn Fn(&str) -> bool,
