@@ -100,20 +100,30 @@ pub async fn run_with(
     let (debug_tx, debug_rx) = watch::channel(Arc::new(crate::estimator::DebugSeries::default()));
     let (mavlink_stats, endpoints) = mavlink_out::build_stats(&config.mavlink);
     let zenoh_out_stats = Arc::new(ZenohOutStats::default());
-    // ROS 2 graph: announce our topics, watch the bridges'.
-    let (ros_tokens, ros_watch) = if config.output.ros2_announce {
-        (
-            crate::ros_graph::announce(
-                &session,
-                &config.output.ros2_outputs(),
-                &config.output.ros2_qos,
-                &config.output.ros_distro,
-            )
-            .await,
-            crate::ros_graph::discover(&session, ingest.ros_topics.clone()).await,
+    // ROS 2 graph: announce our topics, watch the bridges' (discovery shows them too).
+    let ros_tokens = if config.output.ros2_announce {
+        crate::ros_graph::announce(
+            &session,
+            &config.output.ros2_outputs(),
+            &config.output.ros2_qos,
+            &config.output.ros_distro,
         )
+        .await
     } else {
-        (Vec::new(), None)
+        Vec::new()
+    };
+    let ros_watch = if config.output.ros2_announce || config.discovery.enabled {
+        crate::ros_graph::discover(&session, ingest.ros_topics.clone()).await
+    } else {
+        None
+    };
+    let discovery = config
+        .discovery
+        .enabled
+        .then(|| Arc::new(crate::discovery::Discovery::default()));
+    let discovery_watch = match &discovery {
+        Some(d) => crate::discovery::watch(&session, d.clone()).await,
+        None => None,
     };
     let (cmd_tx, cmd_rx) = mpsc::channel(16);
     let pipeline_config = pipeline::PipelineConfig {
@@ -187,6 +197,7 @@ pub async fn run_with(
         zenoh_peers: AtomicU64::new(0),
         recorder: recorder.clone(),
         dashboard_url,
+        discovery,
     });
     let mavlink = tokio::spawn(mavlink_out::run(
         vpe,
@@ -256,6 +267,9 @@ pub async fn run_with(
         }
     }
     if let Some(w) = ros_watch {
+        let _ = w.undeclare().await;
+    }
+    if let Some(w) = discovery_watch {
         let _ = w.undeclare().await;
     }
     for s in subscribers {

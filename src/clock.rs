@@ -22,8 +22,18 @@ pub struct RateMeter {
 const RATE_WINDOW_US: Micros = 1_000_000;
 
 impl RateMeter {
+    /// The rate of the last full window (it holds its value until the next one).
     pub fn rate_hz(&self) -> f64 {
         self.rate_hz
+    }
+
+    /// The rate as of `now`: 0 once no message came for two windows, so a stream that
+    /// stopped does not keep showing its last rate.
+    pub fn rate_hz_at(&self, now: Micros) -> f64 {
+        match self.window_start_us {
+            Some(start) if now - start <= 2 * RATE_WINDOW_US => self.rate_hz,
+            _ => 0.0,
+        }
     }
 
     pub fn tick(&mut self, now: Micros) {

@@ -74,6 +74,29 @@ pub struct Config {
     pub foxglove: FoxgloveConfig,
     #[serde(default)]
     pub fleet: FleetConfig,
+    #[serde(default)]
+    pub discovery: DiscoveryConfig,
+}
+
+/// Watch every key on the network (the Network panel, `/api/v1/discovered`).
+pub const DEFAULT_DISCOVERY_ENABLED: bool = true;
+
+/// `[discovery]`: what is published on the Zenoh network, shown beside the inputs.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct DiscoveryConfig {
+    /// Subscribe to every key (`**`) to list what is published, its rate and what it
+    /// would be read as. Every message on the network then reaches this process: turn
+    /// it off where large streams (camera images) share the network.
+    pub enabled: bool,
+}
+
+impl Default for DiscoveryConfig {
+    fn default() -> Self {
+        Self {
+            enabled: DEFAULT_DISCOVERY_ENABLED,
+        }
+    }
 }
 
 /// The output prefixes the fleet view watches: the default `[output] prefix`
@@ -505,7 +528,7 @@ fn input_kind_matches(input: &InputConfig) -> Result<(), String> {
     let gives = match input.format {
         Format::Ros2 | Format::Ros1 => input
             .ros_type
-            .map(|t| (t.ros2_name().to_string(), t.kind())),
+            .map(|t| (t.ros2_name().to_string(), vec![t.kind()])),
         Format::MavlinkJson | Format::MavlinkRaw => {
             let last = input.key.rsplit('/').next().unwrap_or_default();
             let is_name = last.starts_with(|c: char| c.is_ascii_uppercase())
@@ -517,7 +540,7 @@ fn input_kind_matches(input: &InputConfig) -> Result<(), String> {
             } else {
                 use crate::codec::mavlink::MessageKind;
                 match crate::codec::mavlink::message_kind(last) {
-                    MessageKind::Read(k) => Some((last.to_string(), k)),
+                    MessageKind::Read(k) => Some((last.to_string(), k.to_vec())),
                     MessageKind::NotRead => {
                         return Err(format!(
                             "`key` {:?} names MAVLink {last}, which carries nothing skyfuse reads (its messages would all be ignored); the {} messages are {}",
@@ -541,11 +564,11 @@ fn input_kind_matches(input: &InputConfig) -> Result<(), String> {
         Format::Json => None,
     };
     match gives {
-        Some((what, k)) if k != wants => Err(format!(
+        Some((what, k)) if !k.contains(&wants) => Err(format!(
             "{what} gives {} samples, but `kind` is \"{}\": its messages would all be ignored (set kind = \"{}\", or the {} input's message type)",
-            k.as_str(),
+            k[0].as_str(),
             wants.as_str(),
-            k.as_str(),
+            k[0].as_str(),
             wants.as_str()
         )),
         _ => Ok(()),
@@ -1110,8 +1133,8 @@ mod tests {
             ],
         );
         refused(
-            input("baro", "mavlink/*/*/HIGHRES_IMU", "mavlink-json", ""),
-            &["HIGHRES_IMU gives imu samples"],
+            input("baro", "mavlink/*/*/ATTITUDE", "mavlink-json", ""),
+            &["ATTITUDE gives attitude samples"],
         );
         // What matches is accepted; a wildcard or a raw stream key names no message.
         for ok in [
@@ -1122,6 +1145,9 @@ mod tests {
                 "type = \"sensor_msgs/msg/NavSatFix\"\n",
             ),
             input("baro", "mavlink/*/*/SCALED_PRESSURE2", "mavlink-json", ""),
+            // HIGHRES_IMU carries PX4's barometer beside the IMU.
+            input("baro", "mavlink/*/*/HIGHRES_IMU", "mavlink-json", ""),
+            input("imu", "mavlink/*/*/HIGHRES_IMU", "mavlink-json", ""),
             input("imu", "mavlink/**", "mavlink-json", ""),
             input("flow", "mavlink_raw/out", "mavlink-raw", ""),
         ] {

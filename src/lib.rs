@@ -18,6 +18,8 @@
 //!   brings them, through its `Inlet`), pose/events/live series out.
 //! - [`output`]: the fused pose out: MAVLink (VISION_POSITION_ESTIMATE) and Zenoh.
 //! - [`ros_graph`]: ROS 2 graph presence via the bridge's liveliness tokens.
+//! - [`discovery`]: every key on the network, what it is and which input reads it
+//!   (`/api/v1/discovered`, `skyfuse discover`).
 //! - [`tap`]: copies for the recorder from the data path, never waiting; [`record`]: the
 //!   MCAP flight recorder and the Foxglove live view (one thread behind the taps'
 //!   bounded queue), and MCAP replay through ingest.
@@ -37,6 +39,7 @@ pub mod app;
 pub mod cli;
 pub mod clock;
 pub mod config;
+pub mod discovery;
 pub mod fleet;
 pub mod http;
 pub mod hub;

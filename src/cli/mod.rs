@@ -176,6 +176,28 @@ pub enum Command {
         #[arg(short, long)]
         config: Option<PathBuf>,
     },
+    /// List what is published on the Zenoh network: each key, its rate, what it is
+    /// (ROS 2 type as a bridge announces it or as its bytes decode, MAVLink message,
+    /// raw frames, skyfuse JSON) and which input of the config reads it; with --write, a
+    /// starting config with an input for every key skyfuse reads, which `skyfuse run -c`
+    /// takes as it is. Example: `skyfuse discover --connect tcp/192.168.1.10:7447
+    /// --seconds 5 --write found.toml`.
+    Discover {
+        /// Config whose inputs the keys are matched against (default: built-in).
+        #[arg(short, long, env = "SKYFUSE_CONFIG")]
+        config: Option<PathBuf>,
+        #[command(flatten)]
+        net: NetArgs,
+        /// How long to listen, s.
+        #[arg(long, default_value_t = 5.0)]
+        seconds: f64,
+        /// Write a starting config (one input per key skyfuse reads) to this file.
+        #[arg(long, value_name = "FILE")]
+        write: Option<PathBuf>,
+        /// Print the table as JSON (as /api/v1/discovered).
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 /// The flight recorder and the Foxglove live view.
@@ -326,7 +348,7 @@ pub fn main() -> ExitCode {
     // Still one thread: the environment may be set.
     zenoh_in::set_zenoh_runtime_default();
     // A corpus run prints its table; what each log held is in its files.
-    if matches!(cli.command, Command::Eval { .. }) {
+    if matches!(cli.command, Command::Eval { .. } | Command::Discover { .. }) {
         init_logging_at("warn");
     } else {
         init_logging();
@@ -526,6 +548,13 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
                 &out,
             )
         }
+        Command::Discover {
+            config,
+            net,
+            seconds,
+            write,
+            json,
+        } => discover::discover(load(config.as_deref(), &net)?, &net, seconds, write, json).await,
         Command::Eval {
             paths,
             scenarios,
@@ -832,6 +861,7 @@ fn random_token() -> String {
     b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
+mod discover;
 mod eval;
 mod runs;
 use runs::{offline_sims, parse_window, replay, scenario_at, sim_log, SimLog};

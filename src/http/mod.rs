@@ -35,6 +35,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/metrics", get(metrics_text))
         .route("/api/v1/config", get(config))
         .route("/api/v1/ros/topics", get(ros_topics))
+        .route("/api/v1/discovered", get(discovered))
         .route("/api/v1/control/{action}", post(control))
         .route("/ws", get(ws))
         // Control bodies are a few bytes; nothing the API takes is larger.
@@ -62,6 +63,18 @@ async fn status(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {
 async fn metrics_text(State(s): State<Arc<AppState>>) -> Response {
     let body = metrics::render(&s.status(), metrics::ProcessStats::read());
     ([(header::CONTENT_TYPE, metrics::CONTENT_TYPE)], body).into_response()
+}
+
+async fn discovered(State(s): State<Arc<AppState>>) -> axum::response::Response {
+    use axum::response::IntoResponse;
+    match s.discovered() {
+        Some(d) => Json(d).into_response(),
+        None => (
+            axum::http::StatusCode::NOT_FOUND,
+            Json(serde_json::json!({"error": "discovery is off ([discovery] enabled = false)"})),
+        )
+            .into_response(),
+    }
 }
 
 async fn ros_topics(State(s): State<Arc<AppState>>) -> Json<serde_json::Value> {

@@ -45,6 +45,8 @@ pub struct AppState {
     pub recorder: Option<Arc<crate::record::writer::Recorder>>,
     /// Where people reach this dashboard (announced in `<prefix>/health`).
     pub dashboard_url: String,
+    /// What is published on the network (`[discovery] enabled`).
+    pub discovery: Option<Arc<crate::discovery::Discovery>>,
 }
 
 impl AppState {
@@ -85,8 +87,11 @@ impl AppState {
             estimator: self.pipeline.estimator_status(),
             outputs: vec![
                 self.mavlink_stats.status(now, cfg.mavlink.rate_hz),
-                self.zenoh_out_stats
-                    .status(&cfg.output, &cfg.output.prefix_for(&cfg.service.vehicle)),
+                self.zenoh_out_stats.status(
+                    now,
+                    &cfg.output,
+                    &cfg.output.prefix_for(&cfg.service.vehicle),
+                ),
             ],
             websocket: self.hub.stats(),
             controls: Controls {
@@ -161,6 +166,18 @@ impl AppState {
     pub fn publish_service_event(&self, what: Event, source: Option<&str>, message: &str) {
         let event = EstimatorEvent::new(now_us(), source, message.to_string(), what);
         pipeline::publish_events(&self.pipeline, &[event]);
+    }
+
+    /// `GET /api/v1/discovered`: every key on the network against the inputs; `None`
+    /// with discovery off.
+    pub fn discovered(&self) -> Option<crate::discovery::Discovered> {
+        let d = self.discovery.as_ref()?;
+        Some(d.snapshot(
+            now_us(),
+            &self.config.inputs,
+            &crate::discovery::announced(&self.ingest.ros_topics),
+            &crate::discovery::own_outputs(&self.config),
+        ))
     }
 
     /// `GET /api/v1/ros/topics`: what bridges announce, with the inputs that use each.

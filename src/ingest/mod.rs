@@ -419,8 +419,18 @@ impl Ingest {
             Ok(()) => {}
         }
         let mut out = Vec::with_capacity(decoded.len());
+        // A message may carry a second kind (HIGHRES_IMU: IMU and barometer): the part
+        // of another kind beside one of ours is not "ignored", only a message with
+        // nothing of our kind is.
+        let any_ours = decoded.iter().any(|d| d.data.kind() == input.config.kind);
         for d in decoded {
-            if d.mav_origin == Some(self.own_mav) || d.data.kind() != input.config.kind {
+            if d.data.kind() != input.config.kind {
+                if !any_ours {
+                    c.ignored.fetch_add(1, Relaxed);
+                }
+                continue;
+            }
+            if d.mav_origin == Some(self.own_mav) {
                 c.ignored.fetch_add(1, Relaxed);
                 continue;
             }

@@ -21,9 +21,16 @@ pub struct OutputStatus {
     pub last_error: Option<String>,
     pub sending: bool,
     pub not_sending_reason: Option<String>,
+    /// Poses sent per second over the last second; 0 once sending stopped.
+    pub rate_hz: f64,
+    /// Time since the last pose sent, ms; `None`: never.
+    pub last_sent_age_ms: Option<f64>,
     #[serde(flatten)]
     pub detail: OutputDetail,
 }
+
+/// An output that sent nothing for this long is not sending, µs.
+pub const SENDING_WITHIN_US: i64 = 2_000_000;
 
 /// What only one kind of output has.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -31,12 +38,10 @@ pub struct OutputStatus {
 pub enum OutputDetail {
     Mavlink {
         configured_rate_hz: f64,
-        rate_hz: f64,
         heartbeats: u64,
         origin_sent: u64,
         /// Ticks with nothing sent because the estimate was invalid, stale or non-finite.
         withheld: u64,
-        last_sent_age_ms: Option<f64>,
         reset_counter: u64,
         links: Vec<mavlink_out::LinkStatus>,
     },

@@ -21,6 +21,9 @@ const HEALTH_INTERVAL: Duration = Duration::from_secs(1);
 #[derive(Debug, Default)]
 pub struct ZenohOutStats {
     pub poses: AtomicU64,
+    /// Host time of the last pose published, µs (0: never).
+    pub last_sent_us: AtomicU64,
+    rate: Mutex<crate::clock::RateMeter>,
     pub debug_points: AtomicU64,
     pub events: AtomicU64,
     pub health: AtomicU64,
@@ -38,7 +41,30 @@ impl ZenohOutStats {
         *l = Some(e);
     }
 
-    pub fn status(&self, cfg: &OutputConfig, prefix: &str) -> super::OutputStatus {
+    /// A pose was published at `now`.
+    fn sent(&self, now: i64) {
+        self.poses.fetch_add(1, Relaxed);
+        self.last_sent_us.store(now.max(0) as u64, Relaxed);
+        crate::sync::lock(&self.rate).tick(now);
+    }
+
+    pub fn status(&self, now: i64, cfg: &OutputConfig, prefix: &str) -> super::OutputStatus {
+        let last = self.last_sent_us.load(Relaxed) as i64;
+        let age_s = (now - last) as f64 * 1e-6;
+        // What the page and /metrics say comes from here: sending only if a pose left
+        // lately, and why not otherwise.
+        let reason = if last == 0 {
+            Some(
+                "no pose published yet: the estimator has produced none (see its status)"
+                    .to_string(),
+            )
+        } else if now - last >= super::SENDING_WITHIN_US {
+            Some(format!(
+                "no pose published for {age_s:.0} s: the estimator has produced none (see its status)"
+            ))
+        } else {
+            None
+        };
         let ros = if cfg.ros2 {
             format!(", {}", cfg.ros2_pose_key)
         } else {
@@ -53,8 +79,10 @@ impl ZenohOutStats {
             dropped: 0,
             errors: self.errors.load(Relaxed),
             last_error: crate::sync::lock(&self.last_error).clone(),
-            sending: true,
-            not_sending_reason: None,
+            sending: reason.is_none(),
+            not_sending_reason: reason,
+            rate_hz: crate::sync::lock(&self.rate).rate_hz_at(now),
+            last_sent_age_ms: (last > 0).then_some(age_s * 1e3),
             detail: super::OutputDetail::Zenoh {
                 debug_points: self.debug_points.load(Relaxed),
                 events: self.events.load(Relaxed),
@@ -209,7 +237,7 @@ pub async fn run(
                     }
                 }
                 if ok {
-                    stats.poses.fetch_add(1, Relaxed);
+                    stats.sent(crate::clock::now_us());
                 }
             }
             changed = inp.debug.changed(), if debug_on => {

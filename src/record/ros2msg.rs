@@ -193,6 +193,13 @@ uint8 flow_status
 "#,
             &["std_msgs/Header", "builtin_interfaces/Time"],
         ),
+        RosType::FluidPressure => (
+            r#"std_msgs/Header header
+float64 fluid_pressure
+float64 variance
+"#,
+            &["std_msgs/Header", "builtin_interfaces/Time"],
+        ),
         RosType::PointStamped => (
             r#"std_msgs/Header header
 geometry_msgs/Point point

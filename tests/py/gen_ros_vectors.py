@@ -152,6 +152,11 @@ MESSAGES = [
         "flow_quality": 187,
         "flow_status": 3,
     }),
+    ("sensor_msgs/msg/FluidPressure", {
+        "header": header("barometer"),
+        "fluid_pressure": 97123.5,
+        "variance": 36.0,
+    }),
     ("geometry_msgs/msg/PointStamped", {
         "header": header("base_link_fused"),
         "point": vec(0.1, -0.2, 0.3),

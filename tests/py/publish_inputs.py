@@ -53,11 +53,14 @@ ROS_TYPES = {
     "pose": ("geometry_msgs/msg/PoseStamped", "odometry"),
     "posecov": ("geometry_msgs/msg/PoseWithCovarianceStamped", "odometry"),
     "flow": ("skyfuse_msgs/msg/FlowTof", "flow"),
+    "baro": ("sensor_msgs/msg/FluidPressure", "baro"),
 }
 
 MAV_INPUTS = {
     # input id: (message, kind)
     "mj_highres": ("HIGHRES_IMU", "imu"),
+    # The same messages' abs_pressure, as a barometer.
+    "mj_hrbaro": ("HIGHRES_IMU", "baro"),
     "mj_scaled": ("SCALED_IMU", "imu"),
     "mj_rawimu": ("RAW_IMU", "imu"),
     "mj_att": ("ATTITUDE", "attitude"),
@@ -118,6 +121,8 @@ def ros_message(ts, name, i):
     if name == "skyfuse_msgs/msg/FlowTof":
         return t[name](header=hdr, distance=1.5, strength=200, precision=3, tof_status=0,
                        flow_vel_x=0.1, flow_vel_y=-0.2, flow_quality=180, flow_status=1)
+    if name == "sensor_msgs/msg/FluidPressure":
+        return t[name](header=hdr, fluid_pressure=97000.0 + i, variance=4.0)
     raise ValueError(name)
 
 
@@ -194,6 +199,7 @@ def publish_mavlink_json(msj, put, expected):
                                    '"message":{"type":"HIGHRES_IMU","time_usec":1}}')
     put("mavlink/1/1/HIGHRES_IMU", b"\xff\xfe\x00 not utf-8")
     expected["mj_highres"]["bad"] = 3
+    expected["mj_hrbaro"]["bad"] = 3
     own = dialect.MAVLink(None, srcSystem=1, srcComponent=197)
     own_msg = own.attitude_encode(99999, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     own_msg.pack(own)

@@ -183,6 +183,18 @@ impl SensorData {
 }
 
 impl SensorKind {
+    pub const ALL: [SensorKind; 9] = [
+        SensorKind::Imu,
+        SensorKind::Attitude,
+        SensorKind::Gnss,
+        SensorKind::Flow,
+        SensorKind::Range,
+        SensorKind::Odometry,
+        SensorKind::AutopilotEstimate,
+        SensorKind::VehicleState,
+        SensorKind::Baro,
+    ];
+
     pub fn as_str(self) -> &'static str {
         match self {
             SensorKind::Imu => "imu",

@@ -10,13 +10,14 @@
 //! | `json`        | [`json`]          | hand-written publishers (schema in the README)     |
 //!
 //! [`dataflash`] holds the framing of ArduPilot's log files, shared by their reader
-//! (`replay`) and the simulator's writer.
+//! (`replay`) and the simulator's writer. [`sniff`] tells what an unknown payload is.
 
 pub mod dataflash;
 pub mod error;
 pub mod json;
 pub mod mavlink;
 pub mod ros;
+pub mod sniff;
 
 pub use error::{DecodeError, EncodeError};
 
@@ -80,12 +81,7 @@ pub fn decode(
             out.push(d);
             Ok(())
         }
-        Format::MavlinkJson => {
-            if let Some(d) = mavlink::decode_json(payload)? {
-                out.push(d);
-            }
-            Ok(())
-        }
+        Format::MavlinkJson => mavlink::decode_json_into(payload, out),
         Format::MavlinkRaw => mavlink::decode_raw(payload, out),
         Format::Json => {
             out.push(json::decode(payload)?);
@@ -156,4 +152,21 @@ pub fn encode_sample(
             mavlink_name: None,
         }),
     }
+}
+
+/// Levenshtein distance in characters: how far a typo is from a name (hints for keys
+/// and message names).
+pub fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut prev = row[0];
+        row[0] = i + 1;
+        for (j, cb) in b.iter().enumerate() {
+            let cur = row[j + 1];
+            row[j + 1] = (prev + usize::from(ca != *cb)).min(row[j] + 1).min(cur + 1);
+            prev = cur;
+        }
+    }
+    row[b.len()]
 }

@@ -138,6 +138,8 @@ pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> TlogLog {
             }
         }
         let name = name.into_inner();
+        // One frame, one message counted, whatever number of samples it carries.
+        let mut counted = false;
         for d in decoded.drain(..) {
             if d.mav_origin.is_some_and(|(_, c)| c == OWN_COMPONENT) {
                 continue;
@@ -170,7 +172,9 @@ pub fn parse(bytes: &[u8], progress: &mut dyn FnMut(u64, u64)) -> TlogLog {
                     }
                 })
                 .clone();
-            *out.messages.entry(name.clone()).or_default() += 1;
+            if !std::mem::replace(&mut counted, true) {
+                *out.messages.entry(name.clone()).or_default() += 1;
+            }
             out.samples.push(Sample {
                 source,
                 stamp_us: Some(t),

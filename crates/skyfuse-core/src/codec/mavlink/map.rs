@@ -88,6 +88,26 @@ impl SensorMsg {
         }
     }
 
+    /// Every kind of sample the message can become: its own, and HIGHRES_IMU's
+    /// barometer ([`decode_second`]).
+    pub fn kinds(self) -> &'static [SensorKind] {
+        use SensorKind as K;
+        if self == SensorMsg::HighresImu {
+            return &[K::Imu, K::Baro];
+        }
+        match self.kind() {
+            K::Imu => &[K::Imu],
+            K::Attitude => &[K::Attitude],
+            K::Gnss => &[K::Gnss],
+            K::Flow => &[K::Flow],
+            K::Range => &[K::Range],
+            K::Odometry => &[K::Odometry],
+            K::AutopilotEstimate => &[K::AutopilotEstimate],
+            K::VehicleState => &[K::VehicleState],
+            K::Baro => &[K::Baro],
+        }
+    }
+
     /// (name, id) from rust-mavlink's definitions, so no number is typed twice.
     fn meta(self) -> (&'static str, u32) {
         fn m<D: MessageData>() -> (&'static str, u32) {
@@ -161,6 +181,52 @@ pub(super) fn decode(sensor: SensorMsg, f: &Fields) -> Result<Mapped, DecodeErro
             scaled_pressure(f)
         }
     }
+}
+
+/// The second sample a message carries beside its own: HIGHRES_IMU's barometer.
+pub(super) fn decode_second(sensor: SensorMsg, f: &Fields) -> Result<Mapped, DecodeError> {
+    match sensor {
+        SensorMsg::HighresImu => highres_imu_pressure(f),
+        _ => Ok(None),
+    }
+}
+
+/// HIGHRES_IMU's `abs_pressure` (hPa) and `temperature` (°C) → a barometer, when
+/// `fields_updated` says the pressure is new (PX4 sets the bit only with a new baro
+/// reading, so an IMU at 250 Hz does not repeat a 50 Hz barometer). A zero mask is a
+/// sender that ignores the field: its pressure is taken only when it is one.
+fn highres_imu_pressure(f: &Fields) -> Result<Mapped, DecodeError> {
+    use HighresImuUpdatedFlags as U;
+    let bit = u64::from(U::HIGHRES_IMU_UPDATED_ABS_PRESSURE.bits());
+    let updated = f.flags("fields_updated", |n| {
+        U::from_name(n).map(|b| u64::from(b.bits()))
+    })?;
+    let hpa = f.f32_any("abs_pressure")?;
+    let range = crate::sample::BARO_MIN_PA / 100.0..=crate::sample::BARO_MAX_PA / 100.0;
+    match updated {
+        Some(b) if b != 0 && b & bit == 0 => return Ok(None),
+        Some(b) if b != 0 => {}
+        // Mask zero or absent: no claim, so a zero or garbage pressure is no error.
+        _ if !range.contains(&hpa) => return Ok(None),
+        _ => {}
+    }
+    let hpa = crate::codec::error::in_range(
+        "abs_pressure",
+        hpa,
+        *range.start(),
+        *range.end(),
+        "not an air pressure in hPa",
+    )?;
+    let temperature_c = f.f32_any("temperature")?;
+    let stamp = usec(f, "time_usec")?;
+    Ok(Some((
+        stamp,
+        SensorData::Baro(crate::sample::Baro {
+            pressure_pa: hpa * 100.0,
+            temperature_c: temperature_c.is_finite().then_some(temperature_c),
+            variance: None,
+        }),
+    )))
 }
 
 /// SCALED_PRESSURE(2/3) → a barometer: `press_abs` hPa, `temperature` cdegC.

@@ -30,10 +30,20 @@ use fields::Fields;
 use map::SensorMsg;
 use serde_json::{Map, Value};
 
-/// One mavlink-server JSON payload (`{"header":{...},"message":{"type":"NAME",...}}`).
-/// `Ok(None)` for valid messages that carry no sensor data we use (HEARTBEAT, and any
-/// name we do not know: mavlink-server forwards every dialect's messages).
+/// One mavlink-server JSON payload (`{"header":{...},"message":{"type":"NAME",...}}`):
+/// its first sample. `Ok(None)` for valid messages that carry no sensor data we use
+/// (HEARTBEAT, and any name we do not know: mavlink-server forwards every dialect's
+/// messages). [`decode_json_into`] gives every sample (HIGHRES_IMU's barometer too).
 pub fn decode_json(payload: &[u8]) -> Result<Option<Decoded>, DecodeError> {
+    let mut out = Vec::with_capacity(2);
+    decode_json_into(payload, &mut out)?;
+    Ok(out.into_iter().next())
+}
+
+/// One mavlink-server JSON payload → every sample it carries, pushed to `out`: one, or
+/// two for a HIGHRES_IMU with a pressure (an IMU and a barometer). Samples decoded
+/// before an error are kept in `out`.
+pub fn decode_json_into(payload: &[u8], out: &mut Vec<Decoded>) -> Result<(), DecodeError> {
     const WHAT: &str = "mavlink-server JSON";
     let text = std::str::from_utf8(payload).map_err(|_| DecodeError::NotUtf8)?;
     let strict = json5::to_strict_json(text);
@@ -74,9 +84,9 @@ pub fn decode_json(payload: &[u8]) -> Result<Option<Decoded>, DecodeError> {
         .as_str()
         .ok_or_else(|| wrong("message.type", "a message name"))?;
     let Some(sensor) = SensorMsg::from_name(name) else {
-        return Ok(None);
+        return Ok(());
     };
-    map_message(sensor, message, false, origin)
+    map_message(sensor, message, false, origin, out)
 }
 
 /// Raw MAVLink v1/v2 bytes: one or more whole frames, CRC-checked against the common
@@ -90,8 +100,9 @@ pub fn decode_raw(payload: &[u8], out: &mut Vec<Decoded>) -> Result<(), DecodeEr
 /// What a MAVLink message name is to skyfuse.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MessageKind {
-    /// A message skyfuse reads, as samples of this kind.
-    Read(crate::sample::SensorKind),
+    /// A message skyfuse reads, as samples of these kinds (HIGHRES_IMU: IMU and
+    /// barometer).
+    Read(&'static [crate::sample::SensorKind]),
     /// A message of the dialect skyfuse does not read.
     NotRead,
     /// No MAVLink message at all (a typo in a key).
@@ -101,7 +112,7 @@ pub enum MessageKind {
 /// What a MAVLink message named `name` becomes.
 pub fn message_kind(name: &str) -> MessageKind {
     if let Some(m) = map::SensorMsg::ALL.iter().find(|m| m.name() == name) {
-        return MessageKind::Read(m.kind());
+        return MessageKind::Read(m.kinds());
     }
     match <MavMessage as ::mavlink::Message>::message_id_from_name(name) {
         Some(_) => MessageKind::NotRead,
@@ -113,7 +124,7 @@ pub fn message_kind(name: &str) -> MessageKind {
 pub fn messages_of_kind(kind: crate::sample::SensorKind) -> Vec<&'static str> {
     map::SensorMsg::ALL
         .iter()
-        .filter(|m| m.kind() == kind)
+        .filter(|m| m.kinds().contains(&kind))
         .map(|m| m.name())
         .collect()
 }
@@ -121,23 +132,9 @@ pub fn messages_of_kind(kind: crate::sample::SensorKind) -> Vec<&'static str> {
 /// The message skyfuse reads whose name is nearest `name` (at most 3 edits), for a
 /// typo's hint.
 pub fn closest_message(name: &str) -> Option<&'static str> {
-    fn edits(a: &str, b: &str) -> usize {
-        let b: Vec<char> = b.chars().collect();
-        let mut row: Vec<usize> = (0..=b.len()).collect();
-        for (i, ca) in a.chars().enumerate() {
-            let mut prev = row[0];
-            row[0] = i + 1;
-            for (j, cb) in b.iter().enumerate() {
-                let cur = row[j + 1];
-                row[j + 1] = (prev + usize::from(ca != *cb)).min(row[j] + 1).min(cur + 1);
-                prev = cur;
-            }
-        }
-        row[b.len()]
-    }
     map::SensorMsg::ALL
         .iter()
-        .map(|m| (edits(name, m.name()), m.name()))
+        .map(|m| (crate::codec::edit_distance(name, m.name()), m.name()))
         .filter(|(d, _)| *d <= 3)
         .min()
         .map(|(_, n)| n)
@@ -166,27 +163,32 @@ pub fn decode_raw_filtered(
             DecodeError::Mavlink(format!("{}: not a struct in serde form", sensor.name()))
         })?;
         let v1 = fr.version == ::mavlink::MavlinkVersion::V1;
-        if let Some(d) = map_message(sensor, obj, v1, (fr.system_id, fr.component_id))? {
-            out.push(d);
-        }
-        Ok(())
+        map_message(sensor, obj, v1, (fr.system_id, fr.component_id), out)
     })
 }
 
+/// The message's samples to `out`: its own, then a second one some messages carry
+/// (HIGHRES_IMU's pressure), so a bad second part costs only itself.
 fn map_message(
     sensor: SensorMsg,
     message: &Map<String, Value>,
     v1: bool,
     origin: (u8, u8),
-) -> Result<Option<Decoded>, DecodeError> {
+    out: &mut Vec<Decoded>,
+) -> Result<(), DecodeError> {
     let fields = Fields::new(sensor.name(), message, v1);
-    Ok(
-        map::decode(sensor, &fields)?.map(|(stamp_us, data)| Decoded {
-            stamp_us,
-            mav_origin: Some(origin),
-            data,
-        }),
-    )
+    let mut push = |mapped: map::Mapped| {
+        if let Some((stamp_us, data)) = mapped {
+            out.push(Decoded {
+                stamp_us,
+                mav_origin: Some(origin),
+                data,
+            });
+        }
+    };
+    push(map::decode(sensor, &fields)?);
+    push(map::decode_second(sensor, &fields)?);
+    Ok(())
 }
 
 fn check_header(header: &MavHeader) -> Result<u8, EncodeError> {

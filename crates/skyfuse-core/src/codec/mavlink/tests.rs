@@ -292,11 +292,15 @@ fn legacy_bitmask_form_and_the_updated_mask() {
     }
     // An empty mask is a sender that ignores the field: take everything.
     assert_eq!(decode_json(with("\"\"").as_bytes()).unwrap(), full);
-    // Only pressure updated: nothing for us.
-    assert_eq!(
-        decode_json(with("\"HIGHRES_IMU_UPDATED_ABS_PRESSURE\"").as_bytes()),
-        Ok(None)
-    );
+    // Only pressure updated: no IMU sample, the barometer alone.
+    let d = decode_json(with("\"HIGHRES_IMU_UPDATED_ABS_PRESSURE\"").as_bytes())
+        .unwrap()
+        .unwrap();
+    assert!(matches!(d.data, SensorData::Baro(_)), "{d:?}");
+    // Only the gyro: no barometer either.
+    let mut all = Vec::new();
+    decode_json_into(with("{\"bits\":56}").as_bytes(), &mut all).unwrap();
+    assert_eq!(all.len(), 1);
     assert!(matches!(
         decode_json(with("[1]").as_bytes()),
         Err(DecodeError::WrongType { .. })
@@ -437,11 +441,15 @@ impl Vector {
     }
 }
 
+/// A frame's own sample (HIGHRES_IMU's second, its barometer, is checked and dropped).
 fn raw_one(bytes: &[u8]) -> Option<Decoded> {
     let mut out = Vec::new();
     decode_raw(bytes, &mut out).unwrap();
-    assert!(out.len() <= 1);
-    out.pop()
+    assert!(
+        out.len() <= 1 || (out.len() == 2 && matches!(out[1].data, SensorData::Baro(_))),
+        "{out:?}"
+    );
+    out.into_iter().next()
 }
 
 fn opt_f64(v: &Value) -> Option<f64> {
@@ -882,6 +890,69 @@ fn scaled_pressure_decodes_in_hectopascal_and_refuses_pascal() {
     assert!(e.to_string().contains("press_abs"), "{e}");
 }
 
+/// HIGHRES_IMU carries PX4's barometer (`abs_pressure`, hPa) beside the IMU: both come
+/// out of one message, each stamped `time_usec`; a pressure the mask does not claim is
+/// not repeated as a reading, and a claimed pressure in Pa is refused while the IMU
+/// part of the message is kept.
+#[test]
+fn highres_imu_gives_its_barometer_beside_the_imu() {
+    // A zero mask with a zero pressure (a sender that fills neither) gives the IMU only.
+    let header = MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: 0,
+    };
+    let msg = |abs_pressure: f32, fields_updated| {
+        MavMessage::HIGHRES_IMU(mc::HIGHRES_IMU_DATA {
+            time_usec: 5_000_000,
+            zacc: -9.81,
+            abs_pressure,
+            temperature: 20.0,
+            fields_updated,
+            ..Default::default()
+        })
+    };
+    let raw = |m: &MavMessage| {
+        let mut out = Vec::new();
+        let r = decode_raw(&encode_raw_v2(header, m).unwrap(), &mut out);
+        (r, out)
+    };
+    let (r, out) = raw(&msg(950.0, mc::HighresImuUpdatedFlags::all()));
+    r.unwrap();
+    assert_eq!(out.len(), 2);
+    let SensorData::Baro(b) = &out[1].data else {
+        panic!("{out:?}")
+    };
+    assert!((b.pressure_pa - 95_000.0).abs() < 0.01);
+    assert_eq!(out[1].stamp_us, Some(5_000_000));
+    let (r, out) = raw(&msg(0.0, mc::HighresImuUpdatedFlags::empty()));
+    r.unwrap();
+    assert_eq!(out.len(), 1);
+    assert!(matches!(out[0].data, SensorData::Imu(_)));
+    let (r, out) = raw(&msg(95_000.0, mc::HighresImuUpdatedFlags::all()));
+    let e = r.unwrap_err();
+    assert!(e.to_string().contains("abs_pressure"), "{e}");
+    assert_eq!(out.len(), 1, "the IMU part is kept: {out:?}");
+    assert!(matches!(out[0].data, SensorData::Imu(_)));
+    // mavlink-server's JSON of a real PX4 message: the same two samples.
+    let text = some_or_skip!(golden("HIGHRES_IMU"));
+    let mut all = Vec::new();
+    decode_json_into(text.as_bytes(), &mut all).unwrap();
+    assert_eq!(all.len(), 2, "{all:?}");
+    assert!(matches!(all[0].data, SensorData::Imu(_)));
+    let SensorData::Baro(b) = &all[1].data else {
+        panic!("{:?}", all[1])
+    };
+    assert!(
+        (b.pressure_pa - 101_325.0).abs() < 0.01,
+        "{}",
+        b.pressure_pa
+    );
+    assert_eq!(b.temperature_c, Some(35.5));
+    assert_eq!(all[1].stamp_us, all[0].stamp_us);
+    assert_eq!(all[1].mav_origin, Some((1, 1)));
+}
+
 #[test]
 fn samples_round_trip_through_both_wire_forms() {
     for (stamp, data) in samples() {
@@ -968,7 +1039,7 @@ fn vector_frame(message: &str) -> Vec<u8> {
 
 #[test]
 fn a_bad_crc_costs_only_its_frame() {
-    let a = vector_frame("HIGHRES_IMU");
+    let a = vector_frame("SCALED_IMU");
     let mut b = vector_frame("GPS_RAW_INT");
     let c = vector_frame("ATTITUDE");
     let n = b.len();
@@ -990,7 +1061,7 @@ fn a_bad_crc_costs_only_its_frame() {
 
 #[test]
 fn truncated_frames_and_stray_bytes() {
-    let a = vector_frame("HIGHRES_IMU");
+    let a = vector_frame("SCALED_IMU");
     let c = vector_frame("ATTITUDE");
     // A truncated tail.
     let buf = [a.clone(), c[..c.len() - 3].to_vec()].concat();
@@ -1049,7 +1120,8 @@ fn foreign_messages_are_skipped_and_signed_frames_read() {
     let ahrs2 = v2_frame(178, &[1, 2, 3, 4, 0xFD, 6], 47, 0);
     let mut out = Vec::new();
     decode_raw(&[ahrs2.clone(), a.clone(), ahrs2].concat(), &mut out).unwrap();
-    assert_eq!(out.len(), 1);
+    // HIGHRES_IMU's two samples: the IMU and its barometer.
+    assert_eq!(out.len(), 2);
     // A signed frame (signature not checked) decodes like the unsigned one.
     let plain = raw_one(&a).unwrap();
     let len = usize::from(a[1]);
@@ -1078,7 +1150,8 @@ fn filtered_raw_decoding_keeps_what_is_asked() {
     .concat();
     let mut out = Vec::new();
     decode_raw(&buf, &mut out).unwrap();
-    assert_eq!(out.len(), 3);
+    // Three IMUs and HIGHRES_IMU's barometer.
+    assert_eq!(out.len(), 4);
     let mut out = Vec::new();
     decode_raw_filtered(&buf, &|n| n == "SCALED_IMU", &mut out).unwrap();
     assert_eq!(out.len(), 1);

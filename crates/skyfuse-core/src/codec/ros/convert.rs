@@ -5,7 +5,7 @@ use super::msgs::{self, Header, NavSatStatus, RosMessage};
 use super::RosType;
 use crate::codec::error::{finite, in_range, DecodeError, EncodeError};
 use crate::sample::{
-    Decoded, GnssFix, GnssFixType, Imu, Micros, Odometry, OpticalFlow, Range, SensorData, Tof,
+    Baro, Decoded, GnssFix, GnssFixType, Imu, Micros, Odometry, OpticalFlow, Range, SensorData, Tof,
 };
 use nalgebra::{Matrix3, Matrix6, Quaternion, UnitQuaternion, Vector2, Vector3};
 
@@ -242,6 +242,29 @@ pub fn range(m: &msgs::Range, ros1: bool) -> Result<Decoded, DecodeError> {
     ))
 }
 
+/// A barometer. `fluid_pressure` is Pa by the message's definition; a value in hPa (a
+/// publisher's unit slip, 1013 for sea level) is refused, naming the field.
+pub fn fluid_pressure(m: &msgs::FluidPressure, ros1: bool) -> Result<Decoded, DecodeError> {
+    let pressure_pa = in_range(
+        "FluidPressure.fluid_pressure",
+        m.fluid_pressure,
+        crate::sample::BARO_MIN_PA,
+        crate::sample::BARO_MAX_PA,
+        "not an air pressure in Pa (hPa sent as Pa?)",
+    )?;
+    let variance = finite("FluidPressure.variance", m.variance)?;
+    Ok(decoded(
+        &m.header,
+        ros1,
+        SensorData::Baro(Baro {
+            pressure_pa,
+            temperature_c: None,
+            // 0 is "unknown".
+            variance: (variance > 0.0).then_some(variance),
+        }),
+    ))
+}
+
 fn odometry_from_pose(
     prefix: &str,
     header: &Header,
@@ -343,6 +366,7 @@ const GPS_FRAME: &str = "gps";
 const IMU_FRAME: &str = "base_link";
 const RANGE_FRAME: &str = "rangefinder";
 const FLOW_FRAME: &str = "flow";
+const BARO_FRAME: &str = "barometer";
 
 fn efin(field: &str, v: f64) -> Result<f64, EncodeError> {
     if v.is_finite() {
@@ -600,6 +624,14 @@ pub fn encode_sample(
         (RosType::Imu, SensorData::Imu(i)) => emit(&imu_msg(hdr(IMU_FRAME)?, i)?, ros1),
         (RosType::Range, SensorData::Range(r)) => emit(&range_msg(hdr(RANGE_FRAME)?, r)?, ros1),
         (RosType::FlowTof, SensorData::Flow(f)) => emit(&flow_msg(hdr(FLOW_FRAME)?, f)?, ros1),
+        (RosType::FluidPressure, SensorData::Baro(b)) => emit(
+            &msgs::FluidPressure {
+                header: hdr(BARO_FRAME)?,
+                fluid_pressure: efin("FluidPressure.fluid_pressure", b.pressure_pa)?,
+                variance: efin("FluidPressure.variance", b.variance.unwrap_or(0.0))?,
+            },
+            ros1,
+        ),
         (RosType::Odometry, SensorData::Odometry(o)) => {
             emit(&odometry_msg(hdr(&o.frame_id)?, o)?, ros1)
         }

@@ -20,9 +20,9 @@ mod tests;
 pub use convert::header;
 
 pub use msgs::{
-    FlowTof, Header, Imu, NavSatFix, NavSatStatus, Odometry, Point, PointStamped, Pose,
-    PoseStamped, PoseWithCovariance, PoseWithCovarianceStamped, Quaternion, Range, RosMessage,
-    Twist, TwistWithCovariance, Vector3,
+    FlowTof, FluidPressure, Header, Imu, NavSatFix, NavSatStatus, Odometry, Point, PointStamped,
+    Pose, PoseStamped, PoseWithCovariance, PoseWithCovarianceStamped, Quaternion, Range,
+    RosMessage, Twist, TwistWithCovariance, Vector3,
 };
 
 use crate::codec::error::{DecodeError, EncodeError};
@@ -38,11 +38,12 @@ pub enum RosType {
     PoseStamped,
     PoseWithCovarianceStamped,
     FlowTof,
+    FluidPressure,
     PointStamped,
 }
 
 impl RosType {
-    pub const ALL: [RosType; 8] = [
+    pub const ALL: [RosType; 9] = [
         RosType::NavSatFix,
         RosType::Imu,
         RosType::Range,
@@ -50,6 +51,7 @@ impl RosType {
         RosType::PoseStamped,
         RosType::PoseWithCovarianceStamped,
         RosType::FlowTof,
+        RosType::FluidPressure,
         RosType::PointStamped,
     ];
 
@@ -65,6 +67,7 @@ impl RosType {
             | RosType::PoseWithCovarianceStamped
             | RosType::PointStamped => K::Odometry,
             RosType::FlowTof => K::Flow,
+            RosType::FluidPressure => K::Baro,
         }
     }
 
@@ -84,6 +87,7 @@ impl RosType {
             RosType::PoseStamped => "geometry_msgs/msg/PoseStamped",
             RosType::PoseWithCovarianceStamped => "geometry_msgs/msg/PoseWithCovarianceStamped",
             RosType::FlowTof => "skyfuse_msgs/msg/FlowTof",
+            RosType::FluidPressure => "sensor_msgs/msg/FluidPressure",
             RosType::PointStamped => "geometry_msgs/msg/PointStamped",
         }
     }
@@ -97,6 +101,7 @@ impl RosType {
             RosType::PoseStamped => "geometry_msgs/PoseStamped",
             RosType::PoseWithCovarianceStamped => "geometry_msgs/PoseWithCovarianceStamped",
             RosType::FlowTof => "skyfuse_msgs/FlowTof",
+            RosType::FluidPressure => "sensor_msgs/FluidPressure",
             RosType::PointStamped => "geometry_msgs/PointStamped",
         }
     }
@@ -114,6 +119,7 @@ impl RosType {
             RosType::PoseStamped => "d3812c3cbc69362b77dc0b19b345f8f5",
             RosType::PoseWithCovarianceStamped => "953b798c0f514ff060a53a3498ce6246",
             RosType::FlowTof => "ecea7b08f378954af00280e435488252",
+            RosType::FluidPressure => "804dc5cea1c5306d6a2eb80b9833befe",
             RosType::PointStamped => "c63aecb41bfdfd6b7e1fac37c7cbe7bf",
         }
     }
@@ -164,6 +170,7 @@ fn decode_with(ty: RosType, payload: &[u8], ros1: bool) -> Result<Decoded, Decod
             convert::pose_with_covariance_stamped(&read(payload, ros1)?, ros1)
         }
         RosType::FlowTof => convert::flow_tof(&read(payload, ros1)?, ros1),
+        RosType::FluidPressure => convert::fluid_pressure(&read(payload, ros1)?, ros1),
         RosType::PointStamped => Err(DecodeError::UnsupportedMessage(format!(
             "{} (skyfuse only publishes it)",
             ty.ros2_name()
@@ -180,6 +187,36 @@ pub fn decode_cdr(ty: RosType, payload: &[u8]) -> Result<Decoded, DecodeError> {
 /// Decode a ROS 1 serialised message as zenoh-plugin-ros1 delivers it (no length prefix).
 pub fn decode_ros1(ty: RosType, payload: &[u8]) -> Result<Decoded, DecodeError> {
     decode_with(ty, payload, true)
+}
+
+/// The types skyfuse reads that a CDR payload decodes as, whole (nothing but end
+/// padding left, every padding byte zero) and valid: the candidates for a topic whose type no bridge announces.
+/// Usually one; several when the bytes happen to fit more than one layout.
+pub fn cdr_types(payload: &[u8]) -> Vec<RosType> {
+    fn whole<M: RosMessage>(p: &[u8]) -> bool {
+        wire::Reader::cdr(p)
+            .map(wire::Reader::zero_padding)
+            .and_then(wire::read_whole::<M>)
+            .is_ok()
+    }
+    RosType::ALL
+        .into_iter()
+        .filter(|&t| {
+            let fits = match t {
+                RosType::NavSatFix => whole::<NavSatFix>(payload),
+                RosType::Imu => whole::<Imu>(payload),
+                RosType::Range => whole::<Range>(payload),
+                RosType::Odometry => whole::<Odometry>(payload),
+                RosType::PoseStamped => whole::<PoseStamped>(payload),
+                RosType::PoseWithCovarianceStamped => whole::<PoseWithCovarianceStamped>(payload),
+                RosType::FlowTof => whole::<FlowTof>(payload),
+                RosType::FluidPressure => whole::<FluidPressure>(payload),
+                // Only published by skyfuse.
+                RosType::PointStamped => false,
+            };
+            fits && decode_cdr(t, payload).is_ok()
+        })
+        .collect()
 }
 
 /// Little-endian CDR with the encapsulation header `00 01 00 00`.

@@ -301,6 +301,22 @@ fields!(Range, |s, w| {
 });
 message!(Range, Range);
 
+/// `sensor_msgs/FluidPressure`: a barometer's static pressure.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FluidPressure {
+    pub header: Header,
+    /// Absolute pressure, Pa (not hPa).
+    pub fluid_pressure: f64,
+    /// Pa²; 0 is "unknown".
+    pub variance: f64,
+}
+fields!(FluidPressure, |s, w| {
+    w.header(&mut s.header)?;
+    w.prim(&mut s.fluid_pressure)?;
+    w.prim(&mut s.variance)?;
+});
+message!(FluidPressure, FluidPressure);
+
 /// `nav_msgs/Odometry`: pose in `header.frame_id`, twist in `child_frame_id`.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Odometry {

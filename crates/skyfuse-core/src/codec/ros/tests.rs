@@ -5,7 +5,8 @@
 use super::wire::{self, Writer};
 use super::*;
 use crate::sample::{
-    GnssFix, GnssFixType, Imu as SImu, Odometry as SOdometry, OpticalFlow, Range as SRange, Tof,
+    Baro as SBaro, GnssFix, GnssFixType, Imu as SImu, Odometry as SOdometry, OpticalFlow,
+    Range as SRange, Tof,
 };
 use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector2, Vector3 as V3};
 use proptest::prelude::*;
@@ -104,6 +105,12 @@ impl AsJson for Range {
             v["variance"] = json!(f64::from(var));
         }
         v
+    }
+}
+impl AsJson for FluidPressure {
+    fn json(&self) -> Value {
+        json!({"header": self.header.json(), "fluid_pressure": self.fluid_pressure,
+               "variance": self.variance})
     }
 }
 impl AsJson for Odometry {
@@ -286,6 +293,11 @@ fn expected(ty: RosType, v: &Value) -> Option<Decoded> {
                 status: Some(v["tof_status"].as_u64().expect("tof_status") as u8),
             }),
         }),
+        RosType::FluidPressure => SensorData::Baro(SBaro {
+            pressure_pa: f(&v["fluid_pressure"]),
+            temperature_c: None,
+            variance: Some(f(&v["variance"])).filter(|&x| x > 0.0),
+        }),
         RosType::PointStamped => return None,
     };
     Some(Decoded {
@@ -308,6 +320,7 @@ macro_rules! with_type {
             RosType::PoseStamped => $check::<PoseStamped>($($arg),*),
             RosType::PoseWithCovarianceStamped => $check::<PoseWithCovarianceStamped>($($arg),*),
             RosType::FlowTof => $check::<FlowTof>($($arg),*),
+            RosType::FluidPressure => $check::<FluidPressure>($($arg),*),
             RosType::PointStamped => $check::<PointStamped>($($arg),*),
         }
     };
@@ -449,6 +462,7 @@ header_mut!(
     NavSatFix,
     Imu,
     Range,
+    FluidPressure,
     Odometry,
     PoseStamped,
     PoseWithCovarianceStamped,
@@ -731,6 +745,17 @@ fn sample_roundtrip_every_decodable_type_both_formats() {
                 signal_quality: None,
                 variance: None,
                 orientation: None,
+            }),
+        );
+    }
+    for variance in [Some(36.0), None] {
+        sample_roundtrip(
+            RosType::FluidPressure,
+            t,
+            SensorData::Baro(SBaro {
+                pressure_pa: 97_123.5,
+                temperature_c: None,
+                variance,
             }),
         );
     }

@@ -93,9 +93,18 @@ pub struct Reader<'a> {
     origin: usize,
     big_endian: bool,
     ros1: bool,
+    /// Padding must be zero bytes (what writers put there): only when sniffing an
+    /// unknown payload, where it tells layouts apart that otherwise both fit.
+    zero_padding: bool,
 }
 
 impl<'a> Reader<'a> {
+    /// The same reader, refusing non-zero padding.
+    pub fn zero_padding(mut self) -> Self {
+        self.zero_padding = true;
+        self
+    }
+
     /// A CDR reader after checking the encapsulation header (plain CDR only: ROS 2 does
     /// not use parameter lists or XCDR2 for these types).
     pub fn cdr(payload: &'a [u8]) -> Result<Self, DecodeError> {
@@ -118,6 +127,7 @@ impl<'a> Reader<'a> {
             origin: ENCAPSULATION_LEN,
             big_endian,
             ros1: false,
+            zero_padding: false,
         })
     }
 
@@ -128,6 +138,7 @@ impl<'a> Reader<'a> {
             origin: 0,
             big_endian: false,
             ros1: true,
+            zero_padding: false,
         }
     }
 
@@ -164,7 +175,15 @@ impl<'a> Reader<'a> {
 
     fn align(&mut self, size: usize) -> Result<(), DecodeError> {
         let pad = self.padding(size);
-        self.take(pad).map(|_| ())
+        let strict = self.zero_padding;
+        let at = self.pos;
+        match self.take(pad)? {
+            bytes if strict && bytes.iter().any(|&b| b != 0) => Err(DecodeError::BadLength {
+                field: format!("(padding at byte {at})"),
+                len: pad,
+            }),
+            _ => Ok(()),
+        }
     }
 }
 
@@ -317,6 +336,22 @@ impl Wire for Writer {
 pub fn read<M: WireFields + Default>(mut r: Reader<'_>) -> Result<M, DecodeError> {
     let mut m = M::default();
     m.fields(&mut r)?;
+    Ok(m)
+}
+
+/// Read a whole message: as [`read`], and an error when more than the end padding of a
+/// DDS writer (under 4 bytes) is left, so a shorter type does not read a longer one's
+/// prefix (what sniffing a payload of unknown type needs).
+pub fn read_whole<M: WireFields + Default>(mut r: Reader<'_>) -> Result<M, DecodeError> {
+    let mut m = M::default();
+    m.fields(&mut r)?;
+    let tail = r.buf.get(r.pos..).unwrap_or_default();
+    if tail.len() > 3 || (r.zero_padding && tail.iter().any(|&b| b != 0)) {
+        return Err(DecodeError::BadLength {
+            field: "(end)".into(),
+            len: r.remaining(),
+        });
+    }
     Ok(m)
 }
 

@@ -23,8 +23,7 @@
 //! nearest quaternion (`estimator_states`, which it then replaces) as `attitude` without
 //! `vehicle_attitude`; EKF2's flow gyro (`estimator_optical_flow_vel`)
 //! for flow samples without a gyro. A topic of the wanted set that is absent is listed
-//! in [`Px4Log::missing`], not fatal. The barometer (`vehicle_air_data`) is not read:
-//! the estimator has no barometer input.
+//! in [`Px4Log::missing`], not fatal.
 //!
 //! Conventions, as `crate::sample` fixes them: NED/FRD in, ENU/FLU out, SI units.
 //! `stamp_us` and `arrival_us` are both the row's `timestamp` (PX4's publication time,
