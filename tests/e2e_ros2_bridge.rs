@@ -135,3 +135,54 @@ fn ros2_node_through_the_real_bridge_both_ways() {
         eprintln!("ros2 bridge warnings: {w:?}");
     }
 }
+
+/// Discovery through the real bridge (issue 35): while the emulated ROS 2 node publishes,
+/// `skyfuse discover` finds its four topics with the types the bridge announces and
+/// writes a config; `skyfuse run -c` on that file, unedited, fuses every one of them.
+#[test]
+fn discover_through_the_real_bridge_writes_a_config_run_fuses_from() {
+    const TEST: &str = "discover_through_the_real_bridge_writes_a_config_run_fuses_from";
+    if skip_requested("peers", TEST) {
+        return;
+    }
+    let bridge = match bridge() {
+        Ok(b) => b,
+        Err(why) => {
+            skipped(TEST, &why);
+            return;
+        }
+    };
+    if let Some(why) = missing() {
+        skipped(TEST, &why);
+        return;
+    }
+    let peers = peers_dir();
+    let out = run_py(
+        "ros2_bridge_check.py",
+        &[
+            "--role",
+            "discover",
+            "--skyfuse",
+            env!("CARGO_BIN_EXE_skyfuse"),
+            "--bridge",
+            bridge.to_str().expect("bridge path"),
+            "--peers",
+            peers.to_str().expect("peers path"),
+            "--duration",
+            "30",
+        ],
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(out.trim()).unwrap_or_else(|e| panic!("{e}: {out}"));
+    assert_eq!(v["ok"], true, "{v}");
+    let sensors = v["sensors"].as_object().expect("sensors");
+    assert_eq!(sensors.len(), 4, "{v}");
+    assert!(sensors.values().all(|n| n.as_u64() > Some(0)), "{v}");
+    for id in ["gps", "odometry", "imu", "flow"] {
+        assert!(sensors.contains_key(id), "{id}: {v}");
+    }
+    eprintln!(
+        "discover through the bridge: fused {:?} from the written config",
+        v["sources_used"]
+    );
+}

@@ -529,8 +529,9 @@ def r4(x):
 
 
 # ------------------------------------------------------------------ the check
-def main_check(a):
-    t_start = time.monotonic()
+def dds_world(a, prefix):
+    """A private DDS world (random free domain, a discovery Tag of its own, loopback):
+    returns (tmp dir, domain, env for the children, the bridge binary, the peers dir)."""
     peers = os.path.abspath(a.peers)
     bridge_bin = os.path.abspath(a.bridge or os.environ.get("SKYFUSE_ROS2DDS_BRIDGE")
                                  or os.path.join(peers, "bin", "zenoh-bridge-ros2dds"))
@@ -538,7 +539,7 @@ def main_check(a):
     for pth in (bridge_bin, xml_src, os.path.join(peers, "ros2", "ros2_dds.py"), a.skyfuse, a.config):
         if not os.path.exists(pth):
             raise Fail(f"missing {pth}")
-    tmp = tempfile.mkdtemp(prefix="skyfuse-ros2-")
+    tmp = tempfile.mkdtemp(prefix=prefix)
     domain = pick_domain()
     tag = f"skyfuse-ros2-check-{os.getpid()}-{random.getrandbits(32):08x}"
     xml = open(xml_src).read()
@@ -553,30 +554,93 @@ def main_check(a):
     env.pop("ROS_LOCALHOST_ONLY", None)
     os.environ.update(ROS_DISTRO="humble", ROS_DOMAIN_ID=str(domain), CYCLONEDDS_URI=f"file://{xml_path}")
     sys.path.insert(0, os.path.join(peers, "ros2"))
-    PointStamped, _ = dds_types()
     log(f"tmp {tmp}, ROS_DOMAIN_ID {domain}, discovery tag {tag}")
+    return tmp, domain, env, bridge_bin, peers
 
+
+def start_bridge(procs, bridge_bin, domain, env, tmp, out):
+    """The bridge on tcp/127.0.0.1:<any>, no scouting; returns (its port, its process)."""
+    bridge_log = os.path.join(tmp, "bridge.log")
+    bridge = procs.start(f"bridge {os.path.basename(bridge_bin)}",
+                         [bridge_bin, "-l", "tcp/127.0.0.1:0", "--no-multicast-scouting", "-d", str(domain)],
+                         dict(env, RUST_LOG=os.environ.get("BRIDGE_RUST_LOG", "info")), bridge_log)
+
+    def bridge_port():
+        if bridge.poll() is not None:
+            raise Fail(f"bridge exited ({bridge.returncode}):\n{open(bridge_log, errors='replace').read()[-3000:]}")
+        m = re.search(r"can be reached at: tcp/127\.0\.0\.1:(\d+)", open(bridge_log, errors="replace").read())
+        return int(m.group(1)) if m else None
+    bport = wait_for("the bridge's listening port in its log", 15, bridge_port)
+    out["bridge_endpoint"] = f"tcp/127.0.0.1:{bport}"
+    out["bridge"] = bridge_bin
+    m = re.search(r"zenoh-(?:plugin|bridge)-ros2dds (v?\d[^\s]*)", open(bridge_log, errors="replace").read())
+    out["bridge_version"] = m.group(1) if m else None
+    return bport, bridge
+
+
+def main_discover(a):
+    """`skyfuse discover` through the bridge while the ROS node publishes, then
+    `skyfuse run -c <the file it wrote>`: every input fused, no edit."""
+    tmp, domain, env, bridge_bin, peers = dds_world(a, "skyfuse-ros2-discover-")
+    procs = Procs()
+    out = {"tmp": tmp, "domain_id": domain}
+    try:
+        bport, _ = start_bridge(procs, bridge_bin, domain, env, tmp, out)
+        pub = procs.start("ros2 sensor node", [sys.executable, os.path.abspath(__file__), "--role", "publisher",
+                                               "--domain", str(domain), "--duration", str(a.duration),
+                                               "--out", os.path.join(tmp, "published.json"), "--peers", peers],
+                          env, os.path.join(tmp, "publisher.log"))
+        time.sleep(1.5)
+        found = os.path.join(tmp, "found.toml")
+        d = subprocess.run([a.skyfuse, "discover", "--connect", f"tcp/127.0.0.1:{bport}", "--no-multicast",
+                            "--seconds", "4", "--write", found], env=env, capture_output=True, text=True,
+                           timeout=60)
+        out["discover_stdout"] = d.stdout
+        if d.returncode != 0:
+            raise Fail(f"skyfuse discover failed ({d.returncode}): {d.stdout}\n{d.stderr[-2000:]}")
+        text = open(found).read()
+        out["found_toml"] = text
+        for _, (topic, typ, _) in TOPICS.items():
+            key = topic.lstrip("/")
+            if f'key = "{key}"' not in text or f'type = "{typ}"' not in text:
+                raise Fail(f"{key} ({typ}) not in the written config:\n{text}")
+        if "announced by a ROS 2 bridge" not in text:
+            raise Fail(f"types not taken from the bridge's announcement:\n{text}")
+        http_port = free_tcp_port()
+        sky_log = os.path.join(tmp, "skyfuse.log")
+        sky = procs.start("skyfuse", [a.skyfuse, "run", "-c", found, "--listen", f"tcp/127.0.0.1:{free_tcp_port()}",
+                                      "--no-multicast", "--http", f"127.0.0.1:{http_port}"], env, sky_log)
+
+        def fused():
+            if sky.poll() is not None:
+                raise Fail(f"skyfuse exited ({sky.returncode}):\n{open(sky_log, errors='replace').read()[-3000:]}")
+            if pub.poll() is not None:
+                raise Fail("the sensor node ended before skyfuse fused every input")
+            try:
+                s = http_json(http_port, "/api/v1/status")
+            except Exception:  # noqa: BLE001 - not up yet
+                return None
+            ok = s.get("estimator", {}).get("valid") and all(x.get("accepted", 0) > 0 for x in s["sensors"])
+            return s if ok else None
+        status = wait_for("skyfuse fusing every input of the written config", a.duration, fused, every=0.3)
+        out["sensors"] = {x["id"]: x.get("accepted") for x in status["sensors"]}
+        out["sources_used"] = status["estimator"].get("sources_used")
+        out["ok"] = True
+    finally:
+        procs.stop_all()
+        print(json.dumps(out), flush=True)
+
+
+def main_check(a):
+    t_start = time.monotonic()
+    tmp, domain, env, bridge_bin, peers = dds_world(a, "skyfuse-ros2-")
+    PointStamped, _ = dds_types()
     procs = Procs()
     readers = []
     out = {"domain_id": domain, "tmp": tmp}
     ok = False
     try:
-        # -- the bridge
-        bridge_log = os.path.join(tmp, "bridge.log")
-        bridge = procs.start(f"bridge {os.path.basename(bridge_bin)}",
-                             [bridge_bin, "-l", "tcp/127.0.0.1:0", "--no-multicast-scouting", "-d", str(domain)],
-                             dict(env, RUST_LOG=os.environ.get("BRIDGE_RUST_LOG", "info")), bridge_log)
-
-        def bridge_port():
-            if bridge.poll() is not None:
-                raise Fail(f"bridge exited ({bridge.returncode}):\n{open(bridge_log, errors='replace').read()[-3000:]}")
-            m = re.search(r"can be reached at: tcp/127\.0\.0\.1:(\d+)", open(bridge_log, errors="replace").read())
-            return int(m.group(1)) if m else None
-        bport = wait_for("the bridge's listening port in its log", 15, bridge_port)
-        out["bridge_endpoint"] = f"tcp/127.0.0.1:{bport}"
-        out["bridge"] = bridge_bin
-        m = re.search(r"zenoh-(?:plugin|bridge)-ros2dds (v?\d[^\s]*)", open(bridge_log, errors="replace").read())
-        out["bridge_version"] = m.group(1) if m else None
+        bport, bridge = start_bridge(procs, bridge_bin, domain, env, tmp, out)
 
         # -- DDS discovery watcher and the early reader (before skyfuse exists)
         disc = Discovery(domain)
@@ -923,7 +987,9 @@ def main_check(a):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--role", choices=["check", "publisher"], default="check")
+    ap.add_argument("--role", choices=["check", "discover", "publisher"], default="check",
+                    help="check: the whole round trip; discover: skyfuse discover through the bridge, then "
+                         "skyfuse run on the config it wrote")
     ap.add_argument("--skyfuse", help="the skyfuse binary")
     ap.add_argument("--bridge", help="the bridge binary (default: $SKYFUSE_ROS2DDS_BRIDGE, else the peers' "
                                      "bin/zenoh-bridge-ros2dds)")
@@ -950,7 +1016,7 @@ def main():
     # SIGTERM (a test harness giving up) still runs the clean-up below
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(Fail("terminated (SIGTERM)")))
     try:
-        main_check(a)
+        (main_discover if a.role == "discover" else main_check)(a)
     except Fail as e:
         print(f"FAIL: {e}", file=sys.stderr, flush=True)
         return 1
