@@ -234,6 +234,7 @@ pub async fn run_with(
         ))
     });
     let status_frames = tokio::spawn(status_frames(state.clone()));
+    let silent_inputs = tokio::spawn(report_silent_inputs(state.clone()));
     let zenoh_links = tokio::spawn(watch_zenoh_links(state.clone(), session.clone()));
     // The fleet view finds this vehicle by its token (and sees it go when we stop).
     let prefix = config.output.prefix_for(&config.service.vehicle);
@@ -281,6 +282,7 @@ pub async fn run_with(
     let _ = stop_estimator.send(());
     let _ = estimator.await;
     status_frames.abort();
+    silent_inputs.abort();
     zenoh_links.abort();
     // The pose channel closed with the estimator: the outputs end on their own.
     let _ = mavlink.await;
@@ -511,6 +513,48 @@ async fn record_feed(
                 Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
             },
             _ = health.tick() => tap.health(now_us(), state.health_json()),
+        }
+    }
+}
+
+/// First said this long after start, then again at this interval while it lasts.
+const SILENT_INPUTS_FIRST: Duration = Duration::from_secs(5);
+const SILENT_INPUTS_EVERY: Duration = Duration::from_secs(60);
+
+/// An input that has received nothing says so in the log, with the key it waits on and
+/// what is published that looks meant for it (discovery): the log of a service nobody
+/// feeds must not stop at "estimator not initialised".
+async fn report_silent_inputs(state: Arc<AppState>) {
+    tokio::time::sleep(SILENT_INPUTS_FIRST).await;
+    let mut every = tokio::time::interval(SILENT_INPUTS_EVERY);
+    loop {
+        every.tick().await;
+        let found = state.discovered();
+        for input in state.ingest.inputs.iter().filter(|i| i.config.enabled) {
+            if input.counters.received.load(Relaxed) > 0 {
+                continue;
+            }
+            let near: Vec<String> = found
+                .iter()
+                .flat_map(|d| &d.keys)
+                .filter(|k| k.near.as_ref().is_some_and(|n| n.input == input.config.id))
+                .map(|k| {
+                    let why = k.near.as_ref().map(|n| n.why.as_str()).unwrap_or_default();
+                    format!("{} ({:.0} Hz: {why})", k.key, k.rate_hz)
+                })
+                .collect();
+            let hint = if near.is_empty() {
+                String::new()
+            } else {
+                format!("; published and looking meant for it: {}", near.join(", "))
+            };
+            tracing::warn!(
+                input = %input.config.id,
+                key = %input.config.key,
+                format = %input.config.format,
+                "nothing received on {} yet{hint}",
+                input.config.key
+            );
         }
     }
 }

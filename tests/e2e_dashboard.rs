@@ -297,3 +297,59 @@ fn https_serves_page_and_api_over_tls_only_and_the_healthcheck_asks_over_tls() {
         String::from_utf8_lossy(&bad.stderr)
     );
 }
+
+/// The page says what the API says (issue 35, "status as facts"): in Chromium, every
+/// card, output row, the recorder row and the connection badge against
+/// `/api/v1/status`, for a flying demo (no MAVLink endpoint, GPS at 10 Hz drawn as one
+/// line, the Network panel listing the simulator's keys) and for a service nothing
+/// publishes to (every card names the key it waits for, nothing sending, not "live").
+#[test]
+fn the_page_says_what_the_api_says() {
+    if skip_requested("browser", "the page against the API in Chromium") {
+        return;
+    }
+    let demo = Service::start(&["demo", "--no-browser"], &[]);
+    let url = format!("http://127.0.0.1:{}/", demo.http_port);
+    let out = json(&run_py(
+        "page_vs_api.py",
+        &["--url", &url, "--expect", "flying"],
+    ));
+    assert_eq!(out["ok"], true, "{out}");
+    // No endpoint configured: the MAVLink row says so, as the API does.
+    let mavlink = out["page"]["outputs"]
+        .as_array()
+        .and_then(|o| o.iter().find(|r| r["name"] == "mavlink"))
+        .cloned()
+        .unwrap_or_default();
+    assert_eq!(mavlink["badge"], "not sending", "{out}");
+    assert!(
+        mavlink["why"]
+            .as_str()
+            .unwrap_or("")
+            .contains("no MAVLink endpoint"),
+        "{out}"
+    );
+    drop(demo);
+
+    let silent = Service::start(&["run"], &[]);
+    let url = format!("http://127.0.0.1:{}/", silent.http_port);
+    let out = json(&run_py(
+        "page_vs_api.py",
+        &["--url", &url, "--expect", "silent"],
+    ));
+    assert_eq!(out["ok"], true, "{out}");
+    let status = silent.get_json("/api/v1/status");
+    let tiles = out["page"]["tiles"].as_array().expect("tiles");
+    let waiting: Vec<_> = tiles.iter().filter(|t| t["state"] == "no_data").collect();
+    assert!(!waiting.is_empty(), "{out}");
+    for t in waiting {
+        let key = sensor(&status, t["id"].as_str().unwrap_or(""))["key"].clone();
+        assert!(
+            t["waiting"]
+                .as_str()
+                .unwrap_or("")
+                .contains(key.as_str().unwrap_or("?")),
+            "{t} {key}"
+        );
+    }
+}

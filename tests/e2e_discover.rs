@@ -168,7 +168,24 @@ fn a_key_close_to_a_configured_one_is_pointed_out() {
         "{k}"
     );
     assert_eq!(k["ros_type"], "sensor_msgs/msg/Imu", "{k}");
-    // The input it is meant for has no data.
+    // The input it is meant for has no data, and the log says where it waits and
+    // what is published instead.
     let status = run.get_json("/api/v1/status");
     assert_eq!(sensor(&status, "imu")["accepted"], 0, "{status}");
+    let end = std::time::Instant::now() + Duration::from_secs(20);
+    let said = |log: &str| {
+        log.lines().any(|l| {
+            l.contains("nothing received on mavros/imu/data yet")
+                && l.contains("published and looking meant for it: imu/data")
+        })
+    };
+    while !said(&run.log_text()) && std::time::Instant::now() < end {
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    assert!(said(&run.log_text()), "{}", run.log_text());
+    // Written to a file, the log carries no colour codes (issue 35).
+    assert!(
+        !run.log_text().contains('\u{1b}'),
+        "ANSI escapes in a log file"
+    );
 }

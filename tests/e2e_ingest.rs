@@ -104,6 +104,33 @@ fn every_format_is_counted_for_the_right_sensor_and_bad_input_is_rejected() {
     assert!(sensor(&status, "r2_imu")["last_error"].is_null());
 }
 
+/// Issue 35: a listing whose reader goes away (`skyfuse sim --list | head -1`) ends
+/// quietly, killed by SIGPIPE as Unix tools are, not with a panic on its next line.
+#[test]
+fn a_listing_whose_reader_goes_ends_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_skyfuse"))
+        .args(["sim", "--list"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    // The reader is gone before the first line is written.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("wait");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !err.contains("panicked") && !err.contains("Broken pipe"),
+        "{err}"
+    );
+    assert!(
+        out.status.signal() == Some(13) || out.status.success(),
+        "{:?}: {err}",
+        out.status
+    );
+}
+
 #[test]
 fn check_config_names_unknown_keys_and_missing_files() {
     let dir = TempDir::new("cc");

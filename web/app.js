@@ -74,7 +74,7 @@
     win: 60, paused: false, pausedT: NaN,
     sources: [],            // position sources seen, display order
     visible: {},            // series label -> shown (shared by charts and map)
-    status: null, events: [], lastFrameAt: 0, tickTimes: [],
+    status: null, events: [], lastFrameAt: 0, tickTimes: [], network: [],
     counts: {},             // chart name -> points drawn
   };
   const savedWin = Number(localStorage.getItem('skyfuse.window'));
@@ -569,6 +569,25 @@
     return { ...s, state: stateName, reasons, testRatio, used };
   }
 
+  // An input with nothing (or nothing lately) says on its card which key it waits
+  // for, and what is published that looks meant for it (from /api/v1/discovered).
+  function renderWaiting(el, s) {
+    const waiting = s.state === 'no_data' || s.state === 'stale';
+    const near = waiting ? state.network.filter((k) => k.near && k.near.input === s.id) : [];
+    const sig = waiting ? `${s.key}\u0000${near.map((k) => k.key).join('\u0000')}` : '';
+    if (el.dataset.v === sig) return;
+    el.dataset.v = sig;
+    el.replaceChildren();
+    if (!waiting) return;
+    el.append(document.createTextNode(s.state === 'stale' ? 'nothing lately on ' : 'waiting for '), h('code', null, s.key || '?'));
+    for (const k of near) {
+      const line = h('div', 'near');
+      line.append(document.createTextNode('published: '), h('code', null, k.key),
+        document.createTextNode(` ${fmt(k.rate_hz, 1)} Hz: ${k.near.why}`));
+      el.append(line);
+    }
+  }
+
   const tileEls = new Map();
   function renderTiles(sensors, est) {
     const host = $('#tiles');
@@ -586,7 +605,7 @@
           '<span class="k">rate</span><span class="v f-rate"></span><span class="k">age</span><span class="v f-age"></span>' +
           '<span class="k">qual.</span><span class="v f-q"></span><span class="k">test</span><span class="v f-tr"></span>' +
           '<span class="k">fused</span><span class="v f-used"></span><span class="k">rx/rej</span><span class="v f-rx"></span>' +
-          '</div><ul class="reasons"></ul>';
+          '</div><div class="waiting"></div><ul class="reasons"></ul>';
         host.append(t);
         tileEls.set(s.id, t);
       }
@@ -606,7 +625,7 @@
       b.textContent = s.state.replace('_', ' ');
       b.className = `badge st-${s.state}`;
       const rate = $('.f-rate', t);
-      rate.textContent = `${fmt(s.rate_hz, 1)}/${fmt(s.expected_rate_hz, 0)} Hz`;
+      rate.textContent = `${fmt(s.rate_hz, isNum(s.rate_hz) && s.rate_hz >= 100 ? 0 : 1)}/${fmt(s.expected_rate_hz, 0)} Hz`;
       rate.classList.toggle('warn', isNum(s.rate_hz) && isNum(s.expected_rate_hz) && s.expected_rate_hz > 0 && s.rate_hz < 0.8 * s.expected_rate_hz);
       const age = $('.f-age', t);
       age.textContent = fmtMs(s.age_ms);
@@ -619,6 +638,7 @@
       used.textContent = s.used === true ? 'yes' : s.used === false ? 'no' : '—';
       used.className = `v f-used${s.used === true ? ' good' : ''}`;
       $('.f-rx', t).textContent = `${s.received ?? s.accepted ?? '—'}/${s.rejected ?? '—'}`;
+      renderWaiting($('.waiting', t), s);
       const ul = $('.reasons', t);
       const rs = s.reasons.map((r) => (typeof r === 'string' ? r : r.text || r.code || ''));
       if (ul.dataset.v !== rs.join('\n')) {
@@ -723,8 +743,11 @@
       r.recording ? (ok ? 'recording' : 'stopped') : 'not recording'),
     h('span', 'oname', 'recorder'), h('span', 'okind muted', 'mcap'), h('span', 'oend muted mono', r.file || ''));
     const stats = h('div', 'out-stats mono');
+    // `messages` counts what the recorder thread logged: to the MCAP file when
+    // recording, else only to the Foxglove live view.
+    const what = r.recording ? 'recorded' : r.foxglove ? 'streamed to Foxglove' : 'logged';
     stats.textContent = [r.recording ? `${fmt((r.bytes || 0) / 1048576, 1)} MiB in ${r.files ?? 0} file${r.files === 1 ? '' : 's'}` : '',
-      `${r.messages ?? 0} messages`, r.dropped ? `dropped ${r.dropped}` : 'none dropped',
+      `${r.messages ?? 0} messages ${what}`, r.dropped ? `dropped ${r.dropped}` : 'none dropped',
       r.foxglove ? `Foxglove ws://${r.foxglove} (${r.foxglove_clients ?? 0} client${r.foxglove_clients === 1 ? '' : 's'})` : '']
       .filter(Boolean).join(' · ');
     host.replaceChildren(head, stats);
@@ -767,16 +790,19 @@
     if (extra) li.title = extra;
     return li;
   }
+  // Kept in time order: an estimator event carries its sample's time and can arrive
+  // after a later service event. state.events is oldest first, the list newest first.
   function addEvent(ev, live) {
     state.eventCount++;
-    state.events.push(ev);
-    if (state.events.length > MAX_EVENTS) state.events.shift();
+    const t = isNum(ev.t) ? ev.t : Infinity;
+    let i = state.events.length;
+    while (i > 0 && isNum(state.events[i - 1].t) && state.events[i - 1].t > t) i--;
+    state.events.splice(i, 0, ev);
     const ol = $('#events');
-    ol.prepend(eventEl(ev));
-    while (ol.children.length > MAX_EVENTS) ol.lastChild.remove();
-    if (live) {
-      ol.firstChild.classList.add('fresh');
-    }
+    const el = eventEl(ev);
+    ol.insertBefore(el, ol.children[state.events.length - 1 - i] || null);
+    if (state.events.length > MAX_EVENTS) { state.events.shift(); ol.lastChild.remove(); }
+    if (live) el.classList.add('fresh');
     $('#events-count').textContent = `${state.events.length} shown`;
   }
   function renderEventsAll(list) {
@@ -852,8 +878,9 @@
       const silent = now - state.lastFrameAt;
       if (silent > 10000) { try { ws.close(); } catch (e) { /* ignore */ } ws = null; scheduleReconnect(); return; }
       const c = $('#conn').dataset.state;
-      if (c === 'live' || c === 'stale' || (c === 'open' && state.tickTimes.length)) {
+      if (c === 'live' || c === 'stale' || c === 'idle' || (c === 'open' && state.tickTimes.length)) {
         if (silent > 3000) setConn('stale', `no data for ${(silent / 1000).toFixed(0)} s`);
+        else if (!state.tickTimes.length) setConn('idle', 'connected · no pose from the estimator');
         else setConn('live', `live · ${(state.tickTimes.length / 2).toFixed(0)} Hz`);
       }
     }
@@ -955,33 +982,53 @@
   setWin(state.win);
   connect();
 
-  // ------------------------------------------------- ROS 2 topics (bridges' tokens)
-  async function refreshRosTopics() {
+  // ------------------------------------------- Network: every key on Zenoh
+  // /api/v1/discovered: what each key is, who reads it, what an unread one looks meant
+  // for. Refreshed every 3 s; the sensor cards use it for their "published:" hints.
+  function keyWhat(k) {
+    const what = k.ros_type ? `${k.ros_type}${k.type_from === 'announced' ? ' (bridge)' : ''}`
+      : k.message ? `MAVLink ${k.message}` : k.candidates && k.candidates.length ? `CDR: one of ${k.candidates.join(', ')}`
+        : k.format || 'not read by skyfuse';
+    return k.kinds && k.kinds.length ? `${what} · ${k.kinds.join('+')}` : what;
+  }
+  function keyInput(k) {
+    if (k.own_output) return 'this service';
+    if (k.read_by && k.read_by.length) return k.read_by.join(', ');
+    if (k.near) return `unused · meant for ${k.near.input}? ${k.near.why}`;
+    return 'unused';
+  }
+  async function refreshNetwork() {
     try {
-      const r = await fetch('api/v1/ros/topics', { cache: 'no-store' });
+      const r = await fetch('api/v1/discovered', { cache: 'no-store' });
+      const body = document.querySelector('#net-keys tbody');
+      if (r.status === 404) {
+        state.network = [];
+        body.replaceChildren();
+        $('#net-summary').textContent = 'discovery off ([discovery] enabled = false)';
+        return;
+      }
       if (!r.ok) return;
       const j = await r.json();
-      const topics = (j.topics || []).slice().sort((a, b) => a.topic.localeCompare(b.topic));
-      const body = document.querySelector('#ros-topics tbody');
-      body.replaceChildren(...topics.map((t) => {
+      const keys = (j.keys || []).slice().sort((a, b) => (a.own_output - b.own_output) || a.key.localeCompare(b.key));
+      state.network = keys;
+      body.replaceChildren(...keys.map((k) => {
         const tr = document.createElement('tr');
-        if (!t.alive) tr.className = 'muted';
-        const cells = [
-          t.topic,
-          t.type,
-          t.used_by && t.used_by.length ? `used by ${t.used_by.join(', ')}` : (t.decodable ? '' : 'not decodable'),
-          t.alive ? '' : 'gone',
-        ];
-        for (const c of cells) { const td = document.createElement('td'); td.textContent = c; tr.appendChild(td); }
+        tr.className = k.own_output ? 'own' : k.near ? 'near' : k.rate_hz > 0 ? '' : 'quiet';
+        tr.dataset.key = k.key;
+        const cells = [['key', k.key], ['rate', k.last_age_ms == null ? 'announced' : `${fmt(k.rate_hz, 1)} Hz`],
+          ['what', keyWhat(k)], ['input', keyInput(k)]];
+        for (const [cls, c] of cells) { const td = document.createElement('td'); td.className = cls; td.textContent = c; tr.appendChild(td); }
         return tr;
       }));
-      const alive = topics.filter((t) => t.alive).length;
-      document.getElementById('ros-summary').textContent = topics.length
-        ? `${alive} live topic${alive === 1 ? '' : 's'} from bridges` : 'no bridge seen';
+      const unused = keys.filter((k) => !k.own_output && !(k.read_by && k.read_by.length)).length;
+      $('#net-summary').textContent = keys.length
+        ? `${keys.length} key${keys.length === 1 ? '' : 's'} · ${unused} unused${j.overflow ? ` · ${j.overflow} messages on keys not listed` : ''}`
+        : 'nothing published';
+      if (state.status) renderTiles(Array.isArray(state.status.sensors) ? state.status.sensors : [], state.status.estimator || null);
     } catch (e) { /* the service is restarting: the websocket shows it */ }
   }
-  refreshRosTopics();
-  setInterval(refreshRosTopics, 3000);
+  refreshNetwork();
+  setInterval(refreshNetwork, 3000);
 
   // test hook: cheap accessors only
   window.skyfuse = {
@@ -993,6 +1040,16 @@
       return out;
     },
     tiles: () => [...tileEls.keys()],
+    // What a series of a chart draws: how many gaps uPlot cut in its line.
+    gaps(chart, label) {
+      const u = charts[chart];
+      if (!u) return null;
+      const i = u.series.findIndex((x) => x.label === label);
+      if (i < 1) return null;
+      const p = u.series[i]._paths;
+      return p && p.gaps ? p.gaps.length : 0;
+    },
+    network: () => state.network.map((k) => k.key),
     events: () => state.events.map((e) => e.message || '').reverse(),
     get frames() { return state.frames; },
     get drawMs() { return state.drawMs; }, // duration of the last redraw (ms)

@@ -26,6 +26,9 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Run the service (the real deployment).
+    #[command(
+        after_help = "Example: skyfuse run -c my.toml --connect tcp/192.168.1.10:7447 --mavlink udpout:192.168.1.20:14540"
+    )]
     Run {
         /// Config file (TOML); without it the built-in default (config/default.toml).
         #[arg(short, long, env = "SKYFUSE_CONFIG")]
@@ -40,6 +43,9 @@ pub enum Command {
         mavlink: Vec<String>,
     },
     /// Run the service with the built-in simulator on loopback and open the dashboard.
+    #[command(
+        after_help = "Example: skyfuse demo --mavlink udpout:127.0.0.1:14540   (feeding PX4 SITL)"
+    )]
     Demo {
         #[command(flatten)]
         net: NetArgs,
@@ -61,6 +67,9 @@ pub enum Command {
     /// The fleet view alone, for a ground station: every skyfuse on the Zenoh network on
     /// one page (http://<bind>/fleet). No estimator and no inputs; only `[zenoh]`,
     /// `[http]` and `[fleet]` of the config are used.
+    #[command(
+        after_help = "Example: skyfuse monitor --connect tcp/192.168.1.10:7447 --http 0.0.0.0:8090"
+    )]
     Monitor {
         #[arg(short, long, env = "SKYFUSE_CONFIG")]
         config: Option<PathBuf>,
@@ -68,10 +77,12 @@ pub enum Command {
         net: NetArgs,
     },
     /// Check a config file and print what it configures.
+    #[command(after_help = "Example: skyfuse check-config my.toml")]
     CheckConfig { file: PathBuf },
     /// Ask the running service's /healthz; exit code 0 if it answers 200, else 1
     /// (the container image's HEALTHCHECK). The address comes from the same config
     /// file and environment as `run`.
+    #[command(after_help = "Example: skyfuse healthcheck --http 127.0.0.1:8080")]
     Healthcheck {
         #[arg(short, long, env = "SKYFUSE_CONFIG")]
         config: Option<PathBuf>,
@@ -84,6 +95,9 @@ pub enum Command {
     },
     /// Simulate a flight: publish its sensor samples to Zenoh for another skyfuse
     /// instance, or with `--out` run it offline through the estimator and write TUM files.
+    #[command(
+        after_help = "Example: skyfuse sim --connect tcp/127.0.0.1:7447   (or offline: skyfuse sim --scenario gps-loss --out out/)"
+    )]
     Sim {
         /// Config: its inputs name the keys and formats to publish, its `[estimator]`
         /// table configures offline runs (default: built-in).
@@ -129,6 +143,7 @@ pub enum Command {
     /// recording or a rosbag2 bag in MCAP)
     /// through the estimator and write TUM files, events and a summary scored on the
     /// whole log.
+    #[command(after_help = "Example: skyfuse replay flight.ulg --out out/ --reference ekf2")]
     Replay {
         /// A `.ulg`, `.bin`, `.tlog` or `.mcap` file, or a directory of `<topic>_<instance>.csv[.gz]`
         /// (or a rosbag2 bag directory holding one `.mcap`).
@@ -159,6 +174,9 @@ pub enum Command {
     /// fused against each single source, plain flow dead reckoning and the autopilot's
     /// EKF, valid fraction and consistency. Example: `skyfuse eval ../shared/data
     /// --scenarios --out eval`.
+    #[command(
+        after_help = "Example: skyfuse eval ../shared/data my_logs/ --scenarios --out eval/"
+    )]
     Eval {
         /// Flight logs, or directories searched for them.
         paths: Vec<PathBuf>,
@@ -182,6 +200,9 @@ pub enum Command {
     /// starting config with an input for every key skyfuse reads, which `skyfuse run -c`
     /// takes as it is. Example: `skyfuse discover --connect tcp/192.168.1.10:7447
     /// --seconds 5 --write found.toml`.
+    #[command(
+        after_help = "Example: skyfuse discover --connect tcp/192.168.1.10:7447 --seconds 5 --write found.toml"
+    )]
     Discover {
         /// Config whose inputs the keys are matched against (default: built-in).
         #[arg(short, long, env = "SKYFUSE_CONFIG")]
@@ -323,7 +344,12 @@ pub fn init_logging() {
 fn init_logging_at(default: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).try_init();
+    // Colour codes only for a person at a terminal, not in a file, a pipe or journald.
+    use std::io::IsTerminal;
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(std::io::stdout().is_terminal())
+        .try_init();
 }
 
 /// Entry point of the binary.
@@ -344,6 +370,19 @@ pub fn main() -> ExitCode {
                 ExitCode::FAILURE
             }
         };
+    }
+    // A listing piped into `head` ends quietly when the reader goes, as Unix tools do,
+    // not with a panic on the next println. Only for the commands that print and read
+    // files: the service keeps Rust's default, where a closed socket is an error to
+    // handle, not the end of the process.
+    if matches!(
+        cli.command,
+        Command::CheckConfig { .. }
+            | Command::Replay { .. }
+            | Command::Eval { .. }
+            | Command::Sim { list: true, .. }
+    ) {
+        default_sigpipe();
     }
     // Still one thread: the environment may be set.
     zenoh_in::set_zenoh_runtime_default();
@@ -373,6 +412,15 @@ pub fn main() -> ExitCode {
             eprintln!("error: {e}");
             ExitCode::from(2)
         }
+    }
+}
+
+/// SIGPIPE's default action (terminate quietly); Rust ignores it at start-up.
+fn default_sigpipe() {
+    #[cfg(unix)]
+    // SAFETY: called before any other thread exists; only resets a signal's disposition.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }
 
@@ -869,6 +917,24 @@ use runs::{offline_sims, parse_window, replay, scenario_at, sim_log, SimLog};
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 35: every subcommand's help ends with an example of it.
+    #[test]
+    fn every_subcommand_has_an_example() {
+        use clap::CommandFactory;
+        let cli = Cli::command();
+        for sub in cli.get_subcommands() {
+            let help = sub
+                .get_after_help()
+                .map(|h| h.to_string())
+                .unwrap_or_default();
+            let name = sub.get_name();
+            assert!(
+                help.starts_with("Example: skyfuse ") && help.contains(&format!("skyfuse {name}")),
+                "{name}: {help:?}"
+            );
+        }
+    }
 
     #[test]
     fn healthcheck_asks_a_wildcard_bind_on_loopback() {

@@ -101,8 +101,24 @@ pub async fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, ZenohErro
         mode: cfg.mode,
         listen: cfg.listen.clone(),
         connect: cfg.connect.clone(),
-        message: open_error_message(&e.to_string()),
+        message: with_mode_hint(cfg, open_error_message(&e.to_string())),
     })
+}
+
+/// A client with no router to connect to is told how to give one.
+fn with_mode_hint(cfg: &ZenohConfig, message: String) -> String {
+    if cfg.mode == ZenohMode::Client && cfg.connect.is_empty() {
+        let scouting = if cfg.multicast_scouting {
+            "no router answered multicast scouting either"
+        } else {
+            "and multicast scouting is off"
+        };
+        format!(
+            "{message}: client mode needs a Zenoh router and none is given ({scouting}); add --connect tcp/ROUTER:7447 ([zenoh] connect), or use --mode peer, which needs none"
+        )
+    } else {
+        message
+    }
 }
 
 /// Zenoh's error, without the source paths it carries (` at /…/registry/…/x.rs:12.`),
@@ -187,6 +203,26 @@ pub async fn subscribe_inputs(
 #[cfg(test)]
 mod open_error_tests {
     use super::*;
+
+    /// Issue 35, item 8: `--mode client` without `--connect` says what is missing.
+    #[test]
+    fn a_client_without_a_router_is_told_to_connect_to_one() {
+        let mut cfg = ZenohConfig {
+            mode: ZenohMode::Client,
+            connect: vec![],
+            ..Default::default()
+        };
+        let m = with_mode_hint(&cfg, "Unable to connect to any of []".into());
+        assert!(
+            m.contains("--connect tcp/ROUTER:7447") && m.contains("--mode peer"),
+            "{m}"
+        );
+        cfg.connect = vec!["tcp/127.0.0.1:7447".into()];
+        assert_eq!(with_mode_hint(&cfg, "x".into()), "x");
+        cfg.mode = ZenohMode::Peer;
+        cfg.connect.clear();
+        assert_eq!(with_mode_hint(&cfg, "x".into()), "x");
+    }
 
     #[test]
     fn an_open_error_loses_its_source_paths_and_says_what_to_do() {
