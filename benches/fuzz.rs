@@ -155,6 +155,7 @@ fn targets() -> Vec<Target> {
                 ],
                 Decoder::Mcap => mcap_seeds(),
                 Decoder::Dataflash => dataflash_seeds(),
+                Decoder::Timesync => timesync_seeds(),
                 Decoder::ControlBody => vec![
                     br#"{"sensor": "gps", "fault": "stop", "duration_s": 10}"#.to_vec(),
                     br#"{"sensor":"flow","fault":"dark-floor"}"#.to_vec(),
@@ -164,6 +165,41 @@ fn targets() -> Vec<Target> {
             Target { decoder, seeds }
         })
         .collect()
+}
+
+/// TIMESYNC frames as an autopilot sends them: a request, an answer, both in one read;
+/// and clock triples for the estimate.
+fn timesync_seeds() -> Vec<Vec<u8>> {
+    use mavlink::dialects::common::{MavMessage, TIMESYNC_DATA};
+    let frame = |tc1: i64, ts1: i64| {
+        let header = mavlink::MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: 7,
+        };
+        let msg = MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1,
+            ts1,
+            target_system: 0,
+            target_component: 0,
+        });
+        skyfuse::codec::mavlink::encode_raw_v2(header, &msg).unwrap_or_default()
+    };
+    let request = frame(0, 1_000_000_000_123);
+    let answer = frame(1_000_000_000_500, 1_700_000_000_000_000_000);
+    let triples: Vec<u8> = (0..8i64)
+        .flat_map(|i| {
+            let local = 1_700_000_000_000_000_000 + i * 500_000_000;
+            [1_000_000_000 + i * 500_000_000, local, local + 300_000]
+        })
+        .flat_map(i64::to_le_bytes)
+        .collect();
+    vec![
+        request.clone(),
+        answer.clone(),
+        [request, answer].concat(),
+        triples,
+    ]
 }
 
 /// Short simulated flights as DataFlash logs (every record type the reader maps).

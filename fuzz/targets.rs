@@ -28,10 +28,14 @@ pub enum Target {
     Dataflash,
     /// The fault-control body (`POST /api/v1/sim/fault`).
     ControlBody,
+    /// What the MAVLink output reads back from the autopilot (TIMESYNC), and the clock
+    /// estimate it feeds; bytes that are no frame drive the estimate directly as
+    /// (tc1, ts1, arrival) triples.
+    Timesync,
 }
 
 impl Target {
-    pub const ALL: [Target; 10] = [
+    pub const ALL: [Target; 11] = [
         Target::Ros2Cdr,
         Target::Ros1,
         Target::MavlinkJson,
@@ -42,6 +46,7 @@ impl Target {
         Target::Mcap,
         Target::Dataflash,
         Target::ControlBody,
+        Target::Timesync,
     ];
 
     pub fn name(self) -> &'static str {
@@ -56,6 +61,7 @@ impl Target {
             Target::Mcap => "mcap",
             Target::Dataflash => "dataflash",
             Target::ControlBody => "control_body",
+            Target::Timesync => "timesync",
         }
     }
 
@@ -92,6 +98,21 @@ impl Target {
             }
             Target::ControlBody => {
                 serde_json::from_slice::<skyfuse::sim::faults::FaultRequest>(bytes).is_ok()
+            }
+            Target::Timesync => {
+                let mut ts = skyfuse::output::timesync::TimeSync::default();
+                let frames = codec::mavlink::timesyncs(bytes);
+                for (i, t) in frames.iter().enumerate() {
+                    let t = &t.data;
+                    ts.on_message(t.tc1, t.ts1, t.ts1.wrapping_add(i as i64 * 1_000_000));
+                }
+                let word = |c: &[u8]| i64::from_le_bytes(c.try_into().unwrap_or([0; 8]));
+                for c in bytes.chunks_exact(24) {
+                    ts.on_message(word(&c[..8]), word(&c[8..16]), word(&c[16..]));
+                    let _ = ts.remote_ns(word(&c[16..]));
+                }
+                let _ = ts.status();
+                !frames.is_empty()
             }
         }
     }

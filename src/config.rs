@@ -351,6 +351,14 @@ pub struct MavlinkConfig {
     pub ekf_origin: Option<[f64; 3]>,
     /// The autopilot's system id, the target of the origin messages.
     pub target_system: u8,
+    /// MAVLink 2 signing: a file holding the 32-byte secret key (raw, or 64 hex
+    /// digits), or a passphrase whose SHA-256 is the key (as MAVProxy's `signing setup`
+    /// makes it). Empty: frames go unsigned. The key is never in the config, the
+    /// status or the log.
+    pub signing_key_file: String,
+    /// With a key: refuse (and count) frames the autopilot sends back unsigned or
+    /// badly signed. Off: they are taken.
+    pub signing_required: bool,
 }
 
 /// PX4 wants 30–50 Hz; ArduPilot at least 4 Hz.
@@ -381,8 +389,47 @@ impl Default for MavlinkConfig {
             max_age_ms: DEFAULT_MAV_MAX_AGE_MS,
             ekf_origin: None,
             target_system: DEFAULT_MAV_TARGET_SYSTEM,
+            signing_key_file: String::new(),
+            signing_required: false,
         }
     }
+}
+
+impl MavlinkConfig {
+    /// The signing key from `signing_key_file`, or `None` without one. The error names
+    /// the file, never its content.
+    pub fn signing_key(&self) -> Result<Option<[u8; 32]>, String> {
+        if self.signing_key_file.is_empty() {
+            return Ok(None);
+        }
+        let path = &self.signing_key_file;
+        let bytes =
+            std::fs::read(path).map_err(|e| format!("[mavlink] signing_key_file {path:?}: {e}"))?;
+        signing_key_from(&bytes)
+            .map(Some)
+            .ok_or_else(|| format!("[mavlink] signing_key_file {path:?}: empty"))
+    }
+}
+
+/// A key file's bytes → the key: 32 raw bytes; 64 hex digits; else a passphrase
+/// (trimmed), hashed with SHA-256 as MAVProxy and pymavlink do.
+pub fn signing_key_from(bytes: &[u8]) -> Option<[u8; 32]> {
+    if bytes.len() == 32 {
+        return bytes.try_into().ok();
+    }
+    let text = std::str::from_utf8(bytes).ok()?.trim();
+    if text.is_empty() {
+        return None;
+    }
+    if text.len() == 64 && text.bytes().all(|b| b.is_ascii_hexdigit()) {
+        let mut key = [0u8; 32];
+        for (i, k) in key.iter_mut().enumerate() {
+            *k = u8::from_str_radix(text.get(2 * i..2 * i + 2)?, 16).ok()?;
+        }
+        return Some(key);
+    }
+    use sha2::Digest;
+    Some(sha2::Sha256::digest(text.as_bytes()).into())
 }
 
 /// QoS part of the ROS 2 liveliness tokens skyfuse declares: keyless, reliable,
@@ -738,6 +785,12 @@ impl Config {
 
     /// Cross-field checks serde cannot express.
     pub fn validate(&self) -> Result<(), String> {
+        if self.mavlink.signing_required && self.mavlink.signing_key_file.is_empty() {
+            return Err(
+                "[mavlink] signing_required needs signing_key_file (the key to check with)".into(),
+            );
+        }
+        self.mavlink.signing_key()?;
         if non_empty(&self.http.tls_cert).is_some() != non_empty(&self.http.tls_key).is_some() {
             return Err("[http] tls_cert and tls_key go together (HTTPS needs both)".into());
         }

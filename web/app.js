@@ -709,6 +709,13 @@
     $('#version').textContent = svc.version ? `v${svc.version}` : '';
   }
 
+  // The autopilot's clock (MAVLink TIMESYNC): poses carry its time once converged.
+  function timesyncText(t) {
+    if (!t.converged) return t.used || t.answered ? 'timesync: converging' : 'timesync: no answer yet';
+    const rate = isNum(t.rate) && t.rate !== 1 ? ` · autopilot clock ×${fmt(t.rate, 2)}` : '';
+    return `timesync rtt ${fmt(t.rtt_ms, 1)} ms${rate}`;
+  }
+
   function renderOutputs(outputs) {
     const host = $('#outputs');
     if (!Array.isArray(outputs) || !outputs.length) {
@@ -723,7 +730,8 @@
         h('span', 'oname', o.name || '?'), h('span', 'okind muted', o.kind || ''), h('span', 'oend muted mono', o.endpoint || ''));
       const stats = h('div', 'out-stats mono');
       stats.textContent = [`${fmt(o.rate_hz, 1)} Hz`, `last sent ${isNum(o.last_sent_age_ms) ? `${fmtMs(o.last_sent_age_ms)} ago` : 'never'}`,
-        `reset ${o.reset_counter ?? '—'}`, `sent ${o.sent ?? '—'}`, o.dropped ? `dropped ${o.dropped}` : '', o.errors ? `errors ${o.errors}` : '']
+        `reset ${o.reset_counter ?? '—'}`, `sent ${o.sent ?? '—'}`, o.dropped ? `dropped ${o.dropped}` : '', o.errors ? `errors ${o.errors}` : '',
+        o.timesync ? timesyncText(o.timesync) : '']
         .filter(Boolean).join(' · ');
       row.append(head, stats);
       if (!o.sending && o.not_sending_reason) row.append(h('div', 'out-why', o.not_sending_reason));

@@ -276,6 +276,31 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
         }
         sending.get_or_create(&l).set(flag(o.sending));
     }
+    // The autopilot's clock (MAVLink TIMESYNC).
+    if let Some(ts) = status.outputs.iter().find_map(|o| match &o.detail {
+        OutputDetail::Mavlink { timesync, .. } => Some(timesync),
+        _ => None,
+    }) {
+        m.gauge(
+            "mavlink_timesync_converged",
+            "1 once TIMESYNC knows the autopilot's clock (poses then carry its time)",
+            flag(ts.converged),
+        );
+        if let Some(rtt) = ts.rtt_ms {
+            m.gauge(
+                "mavlink_timesync_rtt_seconds",
+                "Round trip of the newest TIMESYNC sample used",
+                rtt / 1e3,
+            );
+        }
+        if let Some(rate) = ts.rate {
+            m.gauge(
+                "mavlink_timesync_clock_rate",
+                "The autopilot's clock rate against the host's (SITL --speedup N: N)",
+                rate,
+            );
+        }
+    }
 
     let ws = &status.websocket;
     m.gauge(

@@ -39,6 +39,8 @@ pub struct LinkStats {
     pub sent: AtomicU64,
     pub dropped: AtomicU64,
     pub errors: AtomicU64,
+    /// Frames read back refused: unsigned or badly signed while signing is required.
+    pub refused: AtomicU64,
     pub connected: AtomicBool,
     pub last_error: Mutex<Option<String>>,
 }
@@ -70,6 +72,91 @@ pub struct MavlinkStats {
     pub last_reset_counter: AtomicU64,
     rate: Mutex<RateMeter>,
     pub links: Vec<(String, Arc<LinkStats>)>,
+    /// The autopilot's clock, from the TIMESYNC answers the links read back.
+    pub timesync: Mutex<super::timesync::TimeSync>,
+    /// Frames to the endpoints are signed.
+    pub signed: bool,
+}
+
+/// Our TIMESYNC requests go out this often (PX4 and MAVROS: 1–10 Hz).
+const TIMESYNC_INTERVAL_US: i64 = 500_000;
+
+/// What a link needs to answer the autopilot: the output's clock estimate and our
+/// MAVLink identity.
+#[derive(Clone)]
+struct Incoming {
+    stats: Arc<MavlinkStats>,
+    system_id: u8,
+    component_id: u8,
+    /// The link's signing (its key and link id), and whether unsigned frames back are
+    /// refused.
+    signing: Option<Arc<mavlink::SigningData>>,
+    required: bool,
+    link: Arc<LinkStats>,
+}
+
+impl Incoming {
+    /// Bytes read from a link at `now_us`: TIMESYNC answers update the clock estimate;
+    /// the autopilot's requests get the frames to send back.
+    fn read(&self, bytes: &[u8], now_us: i64) -> Vec<Vec<u8>> {
+        let mut replies = Vec::new();
+        for read in crate::codec::mavlink::timesyncs(bytes) {
+            if self.required {
+                let ok = self
+                    .signing
+                    .as_ref()
+                    .is_some_and(|sd| crate::codec::mavlink::signature_ok(&read.frame, sd));
+                if !ok {
+                    self.link.refused.fetch_add(1, Relaxed);
+                    continue;
+                }
+            }
+            let t = read.data;
+            let handled = {
+                let mut ts = crate::sync::lock(&self.stats.timesync);
+                let was = ts.status().converged;
+                let h = ts.on_message(t.tc1, t.ts1, now_us.saturating_mul(1000));
+                let st = ts.status();
+                if st.converged != was {
+                    if st.converged {
+                        tracing::info!(
+                            rtt_ms = st.rtt_ms.unwrap_or(f64::NAN),
+                            rate = st.rate.unwrap_or(1.0),
+                            "MAVLink TIMESYNC converged: poses now carry the autopilot's time"
+                        );
+                    } else {
+                        tracing::warn!(
+                            "MAVLink TIMESYNC reset: the autopilot's clock jumped (a reboot?)"
+                        );
+                    }
+                }
+                h
+            };
+            if let super::timesync::Handled::Answer { tc1, ts1 } = handled {
+                let msg = mavlink::dialects::common::MavMessage::TIMESYNC(
+                    mavlink::dialects::common::TIMESYNC_DATA {
+                        tc1,
+                        ts1,
+                        target_system: t.target_system,
+                        target_component: t.target_component,
+                    },
+                );
+                let header = MavHeader {
+                    system_id: u32::from(self.system_id),
+                    component_id: self.component_id,
+                    sequence: 0,
+                };
+                let frame = match &self.signing {
+                    Some(sd) => crate::codec::mavlink::encode_raw_v2_signed(header, &msg, sd),
+                    None => crate::codec::mavlink::encode_raw_v2(header, &msg),
+                };
+                if let Ok(f) = frame {
+                    replies.push(f);
+                }
+            }
+        }
+        replies
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -78,6 +165,9 @@ pub struct LinkStatus {
     pub sent: u64,
     pub dropped: u64,
     pub errors: u64,
+    /// Frames it sends are signed (MAVLink 2 signing).
+    pub signed: bool,
+    pub refused: u64,
     pub connected: bool,
     pub last_error: Option<String>,
 }
@@ -103,6 +193,9 @@ impl MavlinkStats {
                 sent: l.sent.load(Relaxed),
                 dropped: l.dropped.load(Relaxed),
                 errors: l.errors.load(Relaxed),
+                // The Zenoh routes carry mavlink-server's frames unsigned.
+                signed: self.signed && !name.starts_with("zenoh:"),
+                refused: l.refused.load(Relaxed),
                 connected: l.connected.load(Relaxed),
                 last_error: crate::sync::lock(&l.last_error).clone(),
             })
@@ -132,6 +225,7 @@ impl MavlinkStats {
                 withheld: self.withheld.load(Relaxed),
                 reset_counter: self.last_reset_counter.load(Relaxed),
                 links,
+                timesync: crate::sync::lock(&self.timesync).status(),
             },
         }
     }
@@ -144,6 +238,8 @@ type DirectUdp = Arc<std::sync::OnceLock<(tokio::net::UdpSocket, SocketAddr, Str
 struct Link {
     tx: mpsc::Sender<Arc<[u8]>>,
     stats: Arc<LinkStats>,
+    /// MAVLink 2 signing with this link's id, when a key is configured.
+    signing: Option<Arc<mavlink::SigningData>>,
     /// `udpout`: frames leave from the caller at once (a non-blocking send), not through
     /// the link's task, which only sets the socket up: one task hop less between the
     /// pose and the autopilot.
@@ -171,20 +267,26 @@ impl Link {
     }
 }
 
-fn spawn_link(ep: Endpoint, stats: Arc<LinkStats>) -> Link {
+fn spawn_link(ep: Endpoint, stats: Arc<LinkStats>, incoming: Incoming) -> Link {
     let (tx, rx) = mpsc::channel(LINK_QUEUE);
     let s = stats.clone();
     let direct = DirectUdp::default();
     let d = direct.clone();
+    let signing = incoming.signing.clone();
     tokio::spawn(async move {
         match ep {
-            Endpoint::UdpOut(addr) => udp_out(addr, rx, s, d).await,
-            Endpoint::UdpIn(addr) => udp_in(addr, rx, s).await,
+            Endpoint::UdpOut(addr) => udp_out(addr, rx, s, d, incoming).await,
+            Endpoint::UdpIn(addr) => udp_in(addr, rx, s, incoming).await,
             Endpoint::TcpOut(addr) => tcp_out(addr, rx, s).await,
             Endpoint::Serial { path, baud } => serial(path, baud, rx, s).await,
         }
     });
-    Link { tx, stats, direct }
+    Link {
+        tx,
+        stats,
+        signing,
+        direct,
+    }
 }
 
 /// Drain what arrived while the link could not send, counting it as dropped.
@@ -225,6 +327,7 @@ async fn udp_out(
     mut rx: mpsc::Receiver<Arc<[u8]>>,
     stats: Arc<LinkStats>,
     direct: DirectUdp,
+    incoming: Incoming,
 ) {
     let mut delay = BACKOFF_MIN;
     loop {
@@ -259,11 +362,36 @@ async fn udp_out(
                 Err(e) => stats.error(format!("{name}: {e}")),
             }
         }
-        return;
+        // What the autopilot sends back (TIMESYNC) is read here until the output stops.
+        let mut buf = [0u8; 2048];
+        loop {
+            tokio::select! {
+                r = sock.recv_from(&mut buf) => {
+                    if let Ok((n, from)) = r {
+                        for reply in incoming.read(&buf[..n], now_us()) {
+                            let _ = sock.send_to(&reply, from).await;
+                        }
+                    }
+                }
+                f = rx.recv() => {
+                    let Some(f) = f else { return };
+                    if let Err(e) = sock.send_to(&f, *to).await {
+                        stats.error(format!("{name}: {e}"));
+                    } else {
+                        stats.sent.fetch_add(1, Relaxed);
+                    }
+                }
+            }
+        }
     }
 }
 
-async fn udp_in(addr: String, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+async fn udp_in(
+    addr: String,
+    mut rx: mpsc::Receiver<Arc<[u8]>>,
+    stats: Arc<LinkStats>,
+    incoming: Incoming,
+) {
     let mut delay = BACKOFF_MIN;
     let sock = loop {
         match tokio::net::UdpSocket::bind(&addr).await {
@@ -277,16 +405,19 @@ async fn udp_in(addr: String, mut rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<Link
         }
     };
     let mut peer: Option<SocketAddr> = None;
-    let mut buf = [0u8; 512];
+    let mut buf = [0u8; 2048];
     loop {
         tokio::select! {
             r = sock.recv_from(&mut buf) => {
-                if let Ok((_, from)) = r {
+                if let Ok((n, from)) = r {
                     if peer != Some(from) {
                         tracing::info!("MAVLink output udpin:{addr}: sending to {from}");
                     }
                     peer = Some(from);
                     stats.connected.store(true, Relaxed);
+                    for reply in incoming.read(&buf[..n], now_us()) {
+                        let _ = sock.send_to(&reply, from).await;
+                    }
                 }
             }
             f = rx.recv() => {
@@ -406,6 +537,7 @@ pub fn build_stats(cfg: &MavlinkConfig) -> (Arc<MavlinkStats>, Vec<Endpoint>) {
     (
         Arc::new(MavlinkStats {
             links,
+            signed: !cfg.signing_key_file.is_empty(),
             ..MavlinkStats::default()
         }),
         eps,
@@ -441,6 +573,7 @@ pub struct VpeSender {
     last_origin: Option<i64>,
     started: i64,
     last_sent_pose_us: Option<i64>,
+    last_timesync: Option<i64>,
     tap: crate::tap::Tap,
     zenoh: Option<mpsc::Sender<ZenohFrame>>,
     /// The Zenoh routes' counters (`zenoh:…` links).
@@ -459,10 +592,38 @@ pub fn start(
     endpoints: Vec<Endpoint>,
     tap: crate::tap::Tap,
 ) -> (VpeHandle, Option<mpsc::Receiver<ZenohFrame>>) {
+    // Checked with the config; a key that cannot be read here leaves frames unsigned,
+    // said in the log.
+    let key = cfg.signing_key().unwrap_or_else(|e| {
+        tracing::error!("MAVLink signing off: {e}");
+        None
+    });
     let links: Vec<Link> = endpoints
         .into_iter()
         .zip(stats.links.iter())
-        .map(|(ep, (_, s))| spawn_link(ep, s.clone()))
+        .enumerate()
+        .map(|(i, (ep, (_, s)))| {
+            // Link ids from 1, in the order of the endpoints.
+            let signing = key.map(|k| {
+                Arc::new(mavlink::SigningData::from_config(
+                    mavlink::SigningConfig::new(
+                        k,
+                        (i + 1).min(255) as u8,
+                        true,
+                        !cfg.signing_required,
+                    ),
+                ))
+            });
+            let incoming = Incoming {
+                stats: stats.clone(),
+                system_id: cfg.system_id,
+                component_id: cfg.component_id,
+                signing,
+                required: cfg.signing_required,
+                link: s.clone(),
+            };
+            spawn_link(ep, s.clone(), incoming)
+        })
         .collect();
     let (zenoh, zenoh_rx) = if cfg.zenoh_raw || cfg.zenoh_json {
         let (tx, rx) = mpsc::channel(ZENOH_QUEUE);
@@ -499,6 +660,7 @@ pub fn start(
         last_origin: None,
         started: now_us(),
         last_sent_pose_us: None,
+        last_timesync: None,
         cfg,
         max_std_m,
         stats,
@@ -528,10 +690,31 @@ impl VpeSender {
             && self
                 .last_heartbeat
                 .is_none_or(|h| now - h >= HEARTBEAT_INTERVAL_US);
-        if !due && !heartbeat_due {
+        let timesync_due = !stats.links.is_empty()
+            && self
+                .last_timesync
+                .is_none_or(|t| now - t >= TIMESYNC_INTERVAL_US);
+        if !due && !heartbeat_due && !timesync_due {
             return;
         }
         let mut frames: Vec<mavlink::dialects::common::MavMessage> = Vec::new();
+        if timesync_due {
+            self.last_timesync = Some(now);
+            frames.push(mavlink::dialects::common::MavMessage::TIMESYNC(
+                mavlink::dialects::common::TIMESYNC_DATA {
+                    tc1: 0,
+                    ts1: now.saturating_mul(1000),
+                    target_system: cfg.target_system,
+                    target_component: 0,
+                },
+            ));
+        }
+        // Poses and the origin carry the autopilot's time once TIMESYNC knows it (PX4
+        // stamps them at arrival until then); before, our clock as always.
+        let autopilot_us = |t: i64| -> u64 {
+            let remote = crate::sync::lock(&stats.timesync).remote_ns(t.saturating_mul(1000));
+            remote.map_or(t, |ns| ns / 1000).max(0) as u64
+        };
         let valid_now = current.is_some_and(|p| p.valid);
         if heartbeat_due {
             self.last_heartbeat = Some(now);
@@ -544,7 +727,7 @@ impl VpeSender {
                     .last_origin
                     .is_none_or(|l| (now - l) as f64 * 1e-6 >= crate::config::ORIGIN_RESEND_S);
                 if burst || resend {
-                    match vpe::origin_messages(origin, cfg.target_system, now.max(0) as u64) {
+                    match vpe::origin_messages(origin, cfg.target_system, autopilot_us(now)) {
                         Ok([set_origin, home]) => {
                             self.last_origin = Some(now);
                             frames.push(set_origin);
@@ -570,7 +753,7 @@ impl VpeSender {
             Some(p) if self.last_sent_pose_us == Some(p.time_us) => Ok(None),
             Some(p) if !fresh && p.valid => Ok(None),
             Some(p) => {
-                match vpe::pose_messages(p, p.time_us.max(0) as u64, self.set, self.max_std_m) {
+                match vpe::pose_messages(p, autopilot_us(p.time_us), self.set, self.max_std_m) {
                     Ok(m) => Ok(Some((p.time_us, p.reset_counter, m))),
                     Err(VpeError::Invalid(why)) => Err(format!("estimate invalid: {why}")),
                     Err(e) => Err(format!("estimate rejected: {e}")),
@@ -627,7 +810,16 @@ impl VpeSender {
                     let frame: Arc<[u8]> = frame.into();
                     self.tap.mavlink_out(now, &frame);
                     for l in &self.links {
-                        l.offer(&frame);
+                        match &l.signing {
+                            None => l.offer(&frame),
+                            Some(sd) => {
+                                match crate::codec::mavlink::encode_raw_v2_signed(header, &msg, sd)
+                                {
+                                    Ok(signed) => l.offer(&Arc::from(signed)),
+                                    Err(e) => tracing::error!("MAVLink output: cannot sign: {e}"),
+                                }
+                            }
+                        }
                     }
                     if let Some(z) = &self.zenoh {
                         if z.try_send((header, msg, frame)).is_err() {
@@ -719,7 +911,19 @@ mod tests {
             .map(|a| a.port())
             .expect("port");
         let stats = Arc::new(LinkStats::default());
-        let link = spawn_link(Endpoint::TcpOut(format!("127.0.0.1:{port}")), stats.clone());
+        let incoming = Incoming {
+            stats: Arc::new(MavlinkStats::default()),
+            system_id: 1,
+            component_id: 197,
+            signing: None,
+            required: false,
+            link: stats.clone(),
+        };
+        let link = spawn_link(
+            Endpoint::TcpOut(format!("127.0.0.1:{port}")),
+            stats.clone(),
+            incoming,
+        );
         let frame: Arc<[u8]> = vec![0xFDu8; 20].into();
         let start = std::time::Instant::now();
         for _ in 0..1000 {

@@ -5,6 +5,7 @@
 //! - [`zenoh_out`]: JSON and ROS 2 CDR on Zenoh.
 
 pub mod mavlink_out;
+pub mod timesync;
 pub mod vpe;
 pub mod zenoh_out;
 
@@ -44,6 +45,8 @@ pub enum OutputDetail {
         withheld: u64,
         reset_counter: u64,
         links: Vec<mavlink_out::LinkStatus>,
+        /// The autopilot's clock as TIMESYNC tells it.
+        timesync: timesync::TimeSyncStatus,
     },
     Zenoh {
         debug_points: u64,

@@ -20,6 +20,8 @@ pub(super) struct Frame<'a> {
     pub system_id: u8,
     pub component_id: u8,
     pub payload: &'a [u8],
+    /// The whole frame, signature included (what a signature check reads).
+    pub bytes: &'a [u8],
 }
 
 enum Candidate<'a> {
@@ -167,6 +169,7 @@ fn candidate(buf: &[u8], pos: usize) -> Candidate<'_> {
                 system_id,
                 component_id,
                 payload,
+                bytes: rest.get(..frame_len).unwrap_or_default(),
             },
             frame_len,
         );

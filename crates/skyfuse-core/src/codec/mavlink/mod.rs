@@ -169,6 +169,60 @@ pub fn decode_raw_filtered(
 
 /// The message's samples to `out`: its own, then a second one some messages carry
 /// (HIGHRES_IMU's pressure), so a bad second part costs only itself.
+/// A TIMESYNC read back from a link, with its whole frame (a signature check reads it).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReadTimesync {
+    pub data: ::mavlink::dialects::common::TIMESYNC_DATA,
+    pub frame: Vec<u8>,
+}
+
+/// The TIMESYNC messages in raw MAVLink bytes (CRC-checked frames; anything else is
+/// skipped): what the output's links read back from the autopilot.
+pub fn timesyncs(payload: &[u8]) -> Vec<ReadTimesync> {
+    use ::mavlink::MessageData;
+    let mut out = Vec::new();
+    let _ = frame::for_each_frame(payload, |fr| {
+        if fr.msg_id == ::mavlink::dialects::common::TIMESYNC_DATA::ID {
+            if let Ok(MavMessage::TIMESYNC(data)) =
+                MavMessage::parse(fr.version, fr.msg_id, fr.payload)
+            {
+                out.push(ReadTimesync {
+                    data,
+                    frame: fr.bytes.to_vec(),
+                });
+            }
+        }
+        Ok(())
+    });
+    out
+}
+
+/// MAVLink 2 signing (rust-mavlink's): a frame of `msg` signed with `signing` (its key,
+/// link id and timestamp).
+pub fn encode_raw_v2_signed(
+    header: MavHeader,
+    msg: &MavMessage,
+    signing: &::mavlink::SigningData,
+) -> Result<Vec<u8>, EncodeError> {
+    check_header(&header)?;
+    let mut raw = MAVLinkV2MessageRaw::new();
+    raw.serialize_message_for_signing(header, msg);
+    signing.sign_message(&mut raw);
+    Ok(raw.raw_bytes().to_vec())
+}
+
+/// Whether a frame (as [`timesyncs`] gives it) carries a signature `signing` accepts:
+/// key, link stream and a timestamp newer than the stream's last. Unsigned and
+/// MAVLink 1 frames do not (with `allow_unsigned` off).
+pub fn signature_ok(frame: &[u8], signing: &::mavlink::SigningData) -> bool {
+    if frame.first() != Some(&0xFD) || frame.len() > ::mavlink::consts::MAX_FRAME_SIZE {
+        return false;
+    }
+    let mut buf = [0u8; ::mavlink::consts::MAX_FRAME_SIZE];
+    buf[..frame.len()].copy_from_slice(frame);
+    signing.verify_signature(&MAVLinkV2MessageRaw::from_bytes_unparsed(buf))
+}
+
 fn map_message(
     sensor: SensorMsg,
     message: &Map<String, Value>,

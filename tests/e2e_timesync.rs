@@ -1,0 +1,156 @@
+//! MAVLink TIMESYNC against an autopilot stand-in written with pymavlink (issue 36): the
+//! stand-in keeps its own clock (time since its boot, at real time or 5× as SITL's
+//! `--speedup 5`), answers skyfuse's requests and sends its own as PX4 and ArduPilot do.
+//! skyfuse must answer it, converge on its clock from the answers to its own requests,
+//! say so in the status, and stamp each VISION_POSITION_ESTIMATE in the autopilot's
+//! time (PX4 ignores `usec` otherwise and stamps the pose at arrival).
+
+mod common;
+use common::*;
+
+fn json(text: &str) -> serde_json::Value {
+    serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
+}
+
+/// The demo sending to the stand-in on a free UDP port for `seconds`; the stand-in's
+/// report and the service's MAVLink output status afterwards.
+fn fly_against_standin(rate: f64) -> (serde_json::Value, serde_json::Value) {
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .map(|a| a.port())
+        .expect("udp port");
+    let svc = Service::start(
+        &[
+            "demo",
+            "--no-browser",
+            "--mavlink",
+            &format!("udpout:127.0.0.1:{port}"),
+        ],
+        &[],
+    );
+    let out = json(&run_py(
+        "timesync_standin.py",
+        &[
+            "--port",
+            &port.to_string(),
+            "--seconds",
+            "12",
+            "--rate",
+            &rate.to_string(),
+        ],
+    ));
+    let status = svc.get_json("/api/v1/status");
+    let mav = status["outputs"]
+        .as_array()
+        .and_then(|o| o.iter().find(|x| x["name"] == "mavlink"))
+        .cloned()
+        .unwrap_or_default();
+    (out, mav)
+}
+
+#[test]
+fn timesync_converges_and_poses_carry_the_autopilots_time() {
+    let (out, mav) = fly_against_standin(1.0);
+    let ts = &mav["timesync"];
+    // Both ways: its requests answered, ours answered and used.
+    assert!(out["requests_from_skyfuse"].as_u64() > Some(10), "{out}");
+    assert!(out["answers_from_skyfuse"].as_u64() > Some(10), "{out}");
+    assert!(ts["answered"].as_u64() > Some(10), "{mav}");
+    assert_eq!(ts["converged"], true, "{mav}");
+    assert!(ts["rtt_ms"].as_f64() < Some(50.0), "{mav}");
+    assert_eq!(ts["rate"], 1.0, "{mav}");
+    // VPE usec by the autopilot's clock: arrival minus usec is the pose's age plus the
+    // hop, tens of ms (our clock would put it 56 years off).
+    let age = out["late_age_ms"]["median"].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        (-5.0..250.0).contains(&age),
+        "VPE usec not in the autopilot's time: {out}"
+    );
+    eprintln!(
+        "timesync: rtt {} ms, {} used / {} rejected; VPE age by the autopilot's clock: median {age:.1} ms (min {}, max {})",
+        ts["rtt_ms"], ts["used"], ts["rejected"], out["late_age_ms"]["min"], out["late_age_ms"]["max"]
+    );
+}
+
+#[test]
+fn an_autopilot_clock_at_five_times_real_time_is_found_and_followed() {
+    let (out, mav) = fly_against_standin(5.0);
+    let ts = &mav["timesync"];
+    assert_eq!(ts["converged"], true, "{mav}");
+    let rate = ts["rate"].as_f64().unwrap_or(f64::NAN);
+    assert!((rate - 5.0).abs() < 0.1, "clock rate {rate}: {mav}");
+    // The age by a clock at 5×: five times the real one.
+    let age = out["late_age_ms"]["median"].as_f64().unwrap_or(f64::NAN);
+    assert!((-25.0..1250.0).contains(&age), "{out}");
+    eprintln!(
+        "timesync at 5x: rate {rate:.3}, VPE age by the autopilot's clock median {age:.1} ms"
+    );
+}
+
+/// MAVLink 2 signing (issue 36): an autopilot stand-in that requires signing with the
+/// passphrase's key takes skyfuse's frames (good signatures, none rejected) and answers
+/// its TIMESYNC; a sender without the key (unsigned TIMESYNC from the same address) is
+/// refused and counted by skyfuse, and never answered.
+#[test]
+fn a_signed_link_is_accepted_and_an_unsigned_sender_refused() {
+    let dir = TempDir::new("signing");
+    std::fs::create_dir_all(&dir).expect("dir");
+    let key = dir.join("mavlink.key");
+    std::fs::write(&key, "correct horse battery staple\n").expect("key");
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .map(|a| a.port())
+        .expect("udp port");
+    let svc = Service::start(
+        &[
+            "demo",
+            "--no-browser",
+            "--mavlink",
+            &format!("udpout:127.0.0.1:{port}"),
+        ],
+        &[
+            (
+                "SKYFUSE__MAVLINK__SIGNING_KEY_FILE",
+                key.to_str().expect("path"),
+            ),
+            ("SKYFUSE__MAVLINK__SIGNING_REQUIRED", "true"),
+        ],
+    );
+    let out = json(&run_py(
+        "timesync_standin.py",
+        &[
+            "--port",
+            &port.to_string(),
+            "--seconds",
+            "8",
+            "--passphrase",
+            "correct horse battery staple",
+            "--intruder",
+        ],
+    ));
+    // The autopilot verified every frame: signed, none unsigned.
+    assert!(out["signing"]["good"].as_u64() > Some(50), "{out}");
+    assert_eq!(out["signing"]["bad"], 0, "{out}");
+    assert_eq!(out["signing"]["unsigned_rejected"], 0, "{out}");
+    assert!(out["vpe"].as_u64() > Some(50), "{out}");
+    assert!(out["answers_from_skyfuse"].as_u64() > Some(5), "{out}");
+    // The sender without the key: refused, counted, never answered.
+    assert!(out["intruder_sent"].as_u64() > Some(5), "{out}");
+    assert!(out["intruder_answered"].is_null(), "{out}");
+    let status = svc.get_json("/api/v1/status");
+    let mav = status["outputs"]
+        .as_array()
+        .and_then(|o| o.iter().find(|x| x["name"] == "mavlink"))
+        .cloned()
+        .unwrap_or_default();
+    let link = &mav["links"][0];
+    assert_eq!(link["signed"], true, "{mav}");
+    assert!(
+        link["refused"].as_u64() >= out["intruder_sent"].as_u64().map(|n| n - 1),
+        "{mav} {out}"
+    );
+    assert_eq!(mav["timesync"]["converged"], true, "{mav}");
+    // The key is in no status and no log line.
+    let text = format!("{status}{}", svc.log_text());
+    assert!(!text.contains("correct horse"), "key leaked");
+}
