@@ -70,22 +70,24 @@ fn missing() -> Option<String> {
     None
 }
 
+/// The bridge binary when `test` can run here; else it is skipped, saying why.
+fn ready(test: &str) -> Option<PathBuf> {
+    if skip_requested("peers", test) {
+        return None;
+    }
+    let why = match (bridge(), missing()) {
+        (Ok(b), None) => return Some(b),
+        (Err(why), _) | (Ok(_), Some(why)) => why,
+    };
+    skipped(test, &why);
+    None
+}
+
 #[test]
 fn ros2_node_through_the_real_bridge_both_ways() {
-    if skip_requested("peers", "ros2_node_through_the_real_bridge_both_ways") {
+    let Some(bridge) = ready("ros2_node_through_the_real_bridge_both_ways") else {
         return;
-    }
-    let bridge = match bridge() {
-        Ok(b) => b,
-        Err(why) => {
-            skipped("ros2_node_through_the_real_bridge_both_ways", &why);
-            return;
-        }
     };
-    if let Some(why) = missing() {
-        skipped("ros2_node_through_the_real_bridge_both_ways", &why);
-        return;
-    }
     let peers = peers_dir();
     let out = run_py(
         "ros2_bridge_check.py",
@@ -141,21 +143,10 @@ fn ros2_node_through_the_real_bridge_both_ways() {
 /// writes a config; `skyfuse run -c` on that file, unedited, fuses every one of them.
 #[test]
 fn discover_through_the_real_bridge_writes_a_config_run_fuses_from() {
-    const TEST: &str = "discover_through_the_real_bridge_writes_a_config_run_fuses_from";
-    if skip_requested("peers", TEST) {
+    let Some(bridge) = ready("discover_through_the_real_bridge_writes_a_config_run_fuses_from")
+    else {
         return;
-    }
-    let bridge = match bridge() {
-        Ok(b) => b,
-        Err(why) => {
-            skipped(TEST, &why);
-            return;
-        }
     };
-    if let Some(why) = missing() {
-        skipped(TEST, &why);
-        return;
-    }
     let peers = peers_dir();
     let out = run_py(
         "ros2_bridge_check.py",

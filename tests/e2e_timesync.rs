@@ -12,13 +12,17 @@ fn json(text: &str) -> serde_json::Value {
     serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
 }
 
-/// The demo sending to the stand-in on a free UDP port for `seconds`; the stand-in's
-/// report and the service's MAVLink output status afterwards.
-fn fly_against_standin(rate: f64) -> (serde_json::Value, serde_json::Value) {
+/// The demo sending MAVLink to the stand-in (on a free UDP port) for its run, with
+/// `env`; the stand-in's report, the service's status and the service.
+fn fly_against_standin(
+    standin_args: &[&str],
+    env: &[(&str, &str)],
+) -> (serde_json::Value, serde_json::Value, Service) {
     let port = std::net::UdpSocket::bind("127.0.0.1:0")
         .and_then(|s| s.local_addr())
         .map(|a| a.port())
-        .expect("udp port");
+        .expect("udp port")
+        .to_string();
     let svc = Service::start(
         &[
             "demo",
@@ -26,31 +30,30 @@ fn fly_against_standin(rate: f64) -> (serde_json::Value, serde_json::Value) {
             "--mavlink",
             &format!("udpout:127.0.0.1:{port}"),
         ],
-        &[],
+        env,
     );
-    let out = json(&run_py(
-        "timesync_standin.py",
-        &[
-            "--port",
-            &port.to_string(),
-            "--seconds",
-            "12",
-            "--rate",
-            &rate.to_string(),
-        ],
-    ));
+    let args: Vec<&str> = ["--port", port.as_str()]
+        .into_iter()
+        .chain(standin_args.iter().copied())
+        .collect();
+    let out = json(&run_py("timesync_standin.py", &args));
     let status = svc.get_json("/api/v1/status");
-    let mav = status["outputs"]
+    (out, status, svc)
+}
+
+/// The MAVLink output's part of a status.
+fn mavlink_of(status: &serde_json::Value) -> serde_json::Value {
+    status["outputs"]
         .as_array()
         .and_then(|o| o.iter().find(|x| x["name"] == "mavlink"))
         .cloned()
-        .unwrap_or_default();
-    (out, mav)
+        .unwrap_or_default()
 }
 
 #[test]
 fn timesync_converges_and_poses_carry_the_autopilots_time() {
-    let (out, mav) = fly_against_standin(1.0);
+    let (out, status, _svc) = fly_against_standin(&["--seconds", "12"], &[]);
+    let mav = mavlink_of(&status);
     let ts = &mav["timesync"];
     // Both ways: its requests answered, ours answered and used.
     assert!(out["requests_from_skyfuse"].as_u64() > Some(10), "{out}");
@@ -74,7 +77,8 @@ fn timesync_converges_and_poses_carry_the_autopilots_time() {
 
 #[test]
 fn an_autopilot_clock_at_five_times_real_time_is_found_and_followed() {
-    let (out, mav) = fly_against_standin(5.0);
+    let (out, status, _svc) = fly_against_standin(&["--seconds", "12", "--rate", "5"], &[]);
+    let mav = mavlink_of(&status);
     let ts = &mav["timesync"];
     assert_eq!(ts["converged"], true, "{mav}");
     let rate = ts["rate"].as_f64().unwrap_or(f64::NAN);
@@ -97,16 +101,13 @@ fn a_signed_link_is_accepted_and_an_unsigned_sender_refused() {
     std::fs::create_dir_all(&dir).expect("dir");
     let key = dir.join("mavlink.key");
     std::fs::write(&key, "correct horse battery staple\n").expect("key");
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .map(|a| a.port())
-        .expect("udp port");
-    let svc = Service::start(
+    let (out, status, svc) = fly_against_standin(
         &[
-            "demo",
-            "--no-browser",
-            "--mavlink",
-            &format!("udpout:127.0.0.1:{port}"),
+            "--seconds",
+            "8",
+            "--passphrase",
+            "correct horse battery staple",
+            "--intruder",
         ],
         &[
             (
@@ -116,18 +117,6 @@ fn a_signed_link_is_accepted_and_an_unsigned_sender_refused() {
             ("SKYFUSE__MAVLINK__SIGNING_REQUIRED", "true"),
         ],
     );
-    let out = json(&run_py(
-        "timesync_standin.py",
-        &[
-            "--port",
-            &port.to_string(),
-            "--seconds",
-            "8",
-            "--passphrase",
-            "correct horse battery staple",
-            "--intruder",
-        ],
-    ));
     // The autopilot verified every frame: signed, none unsigned.
     assert!(out["signing"]["good"].as_u64() > Some(50), "{out}");
     assert_eq!(out["signing"]["bad"], 0, "{out}");
@@ -137,12 +126,7 @@ fn a_signed_link_is_accepted_and_an_unsigned_sender_refused() {
     // The sender without the key: refused, counted, never answered.
     assert!(out["intruder_sent"].as_u64() > Some(5), "{out}");
     assert!(out["intruder_answered"].is_null(), "{out}");
-    let status = svc.get_json("/api/v1/status");
-    let mav = status["outputs"]
-        .as_array()
-        .and_then(|o| o.iter().find(|x| x["name"] == "mavlink"))
-        .cloned()
-        .unwrap_or_default();
+    let mav = mavlink_of(&status);
     let link = &mav["links"][0];
     assert_eq!(link["signed"], true, "{mav}");
     assert!(
