@@ -97,6 +97,18 @@ pub type Announced = BTreeMap<String, String>;
 impl Discovery {
     /// One message on `key`. Cheap after a key's first payloads (a map update).
     pub fn observe(&self, key: &str, payload: &[u8], now_us: i64) {
+        self.observe_with(key, payload.len(), now_us, || payload);
+    }
+
+    /// As [`Discovery::observe`], the payload's bytes asked for only while the key is
+    /// still being recognised (Zenoh may have to copy them out of fragments).
+    pub fn observe_with<B: AsRef<[u8]>>(
+        &self,
+        key: &str,
+        len: usize,
+        now_us: i64,
+        payload: impl FnOnce() -> B,
+    ) {
         if sniff::is_mavlink_field_key(key) {
             return;
         }
@@ -121,12 +133,12 @@ impl Discovery {
         }
         let Some(seen) = t.get_mut(key) else { return };
         seen.count += 1;
-        seen.bytes += payload.len() as u64;
+        seen.bytes += len as u64;
         seen.last_us = now_us;
         seen.rate.tick(now_us);
         if seen.sniffed.is_none() && seen.tries < SNIFF_TRIES {
             seen.tries += 1;
-            seen.sniffed = sniff::sniff(key, payload);
+            seen.sniffed = sniff::sniff(key, payload().as_ref());
         }
     }
 
@@ -198,8 +210,12 @@ pub async fn watch(
     let sub = session
         .declare_subscriber("**")
         .callback(move |sample: zenoh::sample::Sample| {
-            let payload = sample.payload().to_bytes();
-            discovery.observe(sample.key_expr().as_str(), &payload, crate::clock::now_us());
+            discovery.observe_with(
+                sample.key_expr().as_str(),
+                sample.payload().len(),
+                crate::clock::now_us(),
+                || sample.payload().to_bytes(),
+            );
         })
         .await;
     match sub {
