@@ -187,6 +187,22 @@ fn timesync_seeds() -> Vec<Vec<u8>> {
     };
     let request = frame(0, 1_000_000_000_123);
     let answer = frame(1_000_000_000_500, 1_700_000_000_000_000_000);
+    // The same answer signed, as a link with signing required reads it.
+    let signed = skyfuse::codec::mavlink::encode_raw_v2_signed(
+        mavlink::MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: 8,
+        },
+        &MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: 1_000_000_000_500,
+            ts1: 1_700_000_000_000_000_000,
+            target_system: 0,
+            target_component: 0,
+        }),
+        &skyfuse::codec::mavlink::signing_data([7; 32], 1, false),
+    )
+    .unwrap_or_default();
     let triples: Vec<u8> = (0..8i64)
         .flat_map(|i| {
             let local = 1_700_000_000_000_000_000 + i * 500_000_000;
@@ -198,6 +214,7 @@ fn timesync_seeds() -> Vec<Vec<u8>> {
         request.clone(),
         answer.clone(),
         [request, answer].concat(),
+        signed,
         triples,
     ]
 }

@@ -28,9 +28,9 @@ pub enum Target {
     Dataflash,
     /// The fault-control body (`POST /api/v1/sim/fault`).
     ControlBody,
-    /// What the MAVLink output reads back from the autopilot (TIMESYNC), and the clock
-    /// estimate it feeds; bytes that are no frame drive the estimate directly as
-    /// (tc1, ts1, arrival) triples.
+    /// What the MAVLink output reads back from the autopilot (TIMESYNC), its signature
+    /// check, and the clock estimate it feeds; bytes that are no frame drive the
+    /// estimate directly as (tc1, ts1, arrival) triples.
     Timesync,
 }
 
@@ -102,7 +102,9 @@ impl Target {
             Target::Timesync => {
                 let mut ts = skyfuse::output::timesync::TimeSync::default();
                 let frames = codec::mavlink::timesyncs(bytes);
+                let signing = codec::mavlink::signing_data([7; 32], 1, false);
                 for (i, t) in frames.iter().enumerate() {
+                    let _ = codec::mavlink::signature_ok(&t.frame, &signing);
                     let t = &t.data;
                     ts.on_message(t.tc1, t.ts1, t.ts1.wrapping_add(i as i64 * 1_000_000));
                 }

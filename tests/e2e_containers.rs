@@ -269,6 +269,9 @@ fn build_image(podman: &Podman) {
             &format!("{CA_BUNDLE}:{CA_BUNDLE}:ro"),
             "--volume",
             &format!("{}:/usr/local/cargo/registry", registry.display()),
+            // Compiled at opt-level 1: the same Dockerfile in half the build time.
+            "--build-arg",
+            "RELEASE_OPT_LEVEL=1",
             "-f",
             "docker/Dockerfile",
             "-t",

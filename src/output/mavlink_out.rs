@@ -605,13 +605,10 @@ pub fn start(
         .map(|(i, (ep, (_, s)))| {
             // Link ids from 1, in the order of the endpoints.
             let signing = key.map(|k| {
-                Arc::new(mavlink::SigningData::from_config(
-                    mavlink::SigningConfig::new(
-                        k,
-                        (i + 1).min(255) as u8,
-                        true,
-                        !cfg.signing_required,
-                    ),
+                Arc::new(crate::codec::mavlink::signing_data(
+                    k,
+                    (i + 1).min(255) as u8,
+                    !cfg.signing_required,
                 ))
             });
             let incoming = Incoming {

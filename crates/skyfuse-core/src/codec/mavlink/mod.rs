@@ -197,6 +197,17 @@ pub fn timesyncs(payload: &[u8]) -> Vec<ReadTimesync> {
     out
 }
 
+/// Signing state for one link: its key, its link id, and whether unsigned frames read
+/// back are taken (rust-mavlink's `SigningData`; outgoing frames are signed).
+pub fn signing_data(key: [u8; 32], link_id: u8, allow_unsigned: bool) -> ::mavlink::SigningData {
+    ::mavlink::SigningData::from_config(::mavlink::SigningConfig::new(
+        key,
+        link_id,
+        true,
+        allow_unsigned,
+    ))
+}
+
 /// MAVLink 2 signing (rust-mavlink's): a frame of `msg` signed with `signing` (its key,
 /// link id and timestamp).
 pub fn encode_raw_v2_signed(
