@@ -9,7 +9,7 @@
 //! never delays the others, and nothing here waits, so nothing can block the estimator.
 
 use super::vpe::{self, MessageSet, VpeError};
-use crate::clock::{now_us, RateMeter};
+use crate::clock::now_us;
 use crate::config::Endpoint;
 use crate::config::MavlinkConfig;
 use crate::estimator::FusedPose;
@@ -68,9 +68,9 @@ pub struct MavlinkStats {
     /// Ticks with nothing sent because the estimate was invalid, stale or non-finite.
     pub withheld: AtomicU64,
     pub not_sending_reason: Mutex<Option<String>>,
-    pub last_sent_us: AtomicU64,
+    /// When a VISION_POSITION_ESTIMATE last went out, and how fast they go.
+    clock: super::SendClock,
     pub last_reset_counter: AtomicU64,
-    rate: Mutex<RateMeter>,
     pub links: Vec<(String, Arc<LinkStats>)>,
     /// The autopilot's clock, from the TIMESYNC answers the links read back.
     pub timesync: Mutex<super::timesync::TimeSync>,
@@ -178,7 +178,6 @@ pub const NO_ENDPOINT: &str =
 
 impl MavlinkStats {
     pub fn status(&self, now: i64, rate_hz: f64) -> super::OutputStatus {
-        let last = self.last_sent_us.load(Relaxed) as i64;
         // Nowhere to send is said first: it is what the user has to change.
         let reason = if self.links.is_empty() {
             Some(NO_ENDPOINT.to_string())
@@ -214,10 +213,10 @@ impl MavlinkStats {
             dropped: sum(|l| l.dropped),
             errors: sum(|l| l.errors),
             last_error: links.iter().find_map(|l| l.last_error.clone()),
-            sending: reason.is_none() && last > 0 && now - last < super::SENDING_WITHIN_US,
+            sending: reason.is_none() && self.clock.recent(now),
             not_sending_reason: reason,
-            rate_hz: crate::sync::lock(&self.rate).rate_hz_at(now),
-            last_sent_age_ms: (last > 0).then(|| (now - last) as f64 / 1e3),
+            rate_hz: self.clock.rate_hz(now),
+            last_sent_age_ms: self.clock.age_ms(now),
             detail: super::OutputDetail::Mavlink {
                 configured_rate_hz: rate_hz,
                 heartbeats: self.heartbeats.load(Relaxed),
@@ -775,9 +774,8 @@ impl VpeSender {
                 advance(&mut self.next_due);
                 self.last_sent_pose_us = Some(t);
                 stats.vpe_sent.fetch_add(1, Relaxed);
-                stats.last_sent_us.store(now.max(0) as u64, Relaxed);
+                stats.clock.sent(now);
                 stats.last_reset_counter.store(u64::from(reset), Relaxed);
-                crate::sync::lock(&stats.rate).tick(now);
                 *crate::sync::lock(&stats.not_sending_reason) = None;
                 frames.extend(msgs);
             }

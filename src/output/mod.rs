@@ -33,6 +33,44 @@ pub struct OutputStatus {
 /// An output that sent nothing for this long is not sending, µs.
 pub const SENDING_WITHIN_US: i64 = 2_000_000;
 
+/// When an output last sent a pose and how fast it sends: what its status derives
+/// "sending", `rate_hz` and `last_sent_age_ms` from.
+#[derive(Debug, Default)]
+pub struct SendClock {
+    /// Host time of the last send, µs (0: never).
+    last_us: std::sync::atomic::AtomicU64,
+    rate: std::sync::Mutex<crate::clock::RateMeter>,
+}
+
+impl SendClock {
+    /// A pose was sent at `now`.
+    pub fn sent(&self, now: i64) {
+        self.last_us
+            .store(now.max(0) as u64, std::sync::atomic::Ordering::Relaxed);
+        crate::sync::lock(&self.rate).tick(now);
+    }
+
+    /// Time since the last send at `now`, µs; `None`: never sent.
+    pub fn age_us(&self, now: i64) -> Option<i64> {
+        let last = self.last_us.load(std::sync::atomic::Ordering::Relaxed) as i64;
+        (last > 0).then_some(now - last)
+    }
+
+    /// A pose went out within [`SENDING_WITHIN_US`] of `now`.
+    pub fn recent(&self, now: i64) -> bool {
+        self.age_us(now).is_some_and(|a| a < SENDING_WITHIN_US)
+    }
+
+    /// Sends per second over the last second; 0 once sending stopped.
+    pub fn rate_hz(&self, now: i64) -> f64 {
+        crate::sync::lock(&self.rate).rate_hz_at(now)
+    }
+
+    pub fn age_ms(&self, now: i64) -> Option<f64> {
+        self.age_us(now).map(|a| a as f64 / 1e3)
+    }
+}
+
 /// What only one kind of output has.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(untagged)]

@@ -21,9 +21,7 @@ const HEALTH_INTERVAL: Duration = Duration::from_secs(1);
 #[derive(Debug, Default)]
 pub struct ZenohOutStats {
     pub poses: AtomicU64,
-    /// Host time of the last pose published, µs (0: never).
-    pub last_sent_us: AtomicU64,
-    rate: Mutex<crate::clock::RateMeter>,
+    clock: super::SendClock,
     pub debug_points: AtomicU64,
     pub events: AtomicU64,
     pub health: AtomicU64,
@@ -44,26 +42,22 @@ impl ZenohOutStats {
     /// A pose was published at `now`.
     fn sent(&self, now: i64) {
         self.poses.fetch_add(1, Relaxed);
-        self.last_sent_us.store(now.max(0) as u64, Relaxed);
-        crate::sync::lock(&self.rate).tick(now);
+        self.clock.sent(now);
     }
 
     pub fn status(&self, now: i64, cfg: &OutputConfig, prefix: &str) -> super::OutputStatus {
-        let last = self.last_sent_us.load(Relaxed) as i64;
-        let age_s = (now - last) as f64 * 1e-6;
         // What the page and /metrics say comes from here: sending only if a pose left
         // lately, and why not otherwise.
-        let reason = if last == 0 {
-            Some(
+        let reason = match self.clock.age_us(now) {
+            None => Some(
                 "no pose published yet: the estimator has produced none (see its status)"
                     .to_string(),
-            )
-        } else if now - last >= super::SENDING_WITHIN_US {
-            Some(format!(
-                "no pose published for {age_s:.0} s: the estimator has produced none (see its status)"
-            ))
-        } else {
-            None
+            ),
+            Some(_) if self.clock.recent(now) => None,
+            Some(age) => Some(format!(
+                "no pose published for {:.0} s: the estimator has produced none (see its status)",
+                age as f64 * 1e-6
+            )),
         };
         let ros = if cfg.ros2 {
             format!(", {}", cfg.ros2_pose_key)
@@ -81,8 +75,8 @@ impl ZenohOutStats {
             last_error: crate::sync::lock(&self.last_error).clone(),
             sending: reason.is_none(),
             not_sending_reason: reason,
-            rate_hz: crate::sync::lock(&self.rate).rate_hz_at(now),
-            last_sent_age_ms: (last > 0).then_some(age_s * 1e3),
+            rate_hz: self.clock.rate_hz(now),
+            last_sent_age_ms: self.clock.age_ms(now),
             detail: super::OutputDetail::Zenoh {
                 debug_points: self.debug_points.load(Relaxed),
                 events: self.events.load(Relaxed),
