@@ -64,13 +64,13 @@ pub struct DiscoveredKey {
     /// This service's own output.
     pub own_output: bool,
     /// What it is: format, ROS type or MAVLink message, kinds of sample.
-    pub format: Option<&'static str>,
+    pub format: Option<Format>,
     pub ros_type: Option<String>,
     /// Where the ROS type comes from: "announced" (a bridge's liveliness token) or
     /// "payload" (it decodes as that type and no other).
     pub type_from: Option<&'static str>,
     pub message: Option<String>,
-    pub kinds: Vec<&'static str>,
+    pub kinds: Vec<SensorKind>,
     /// CDR that fits several types (no bridge says which).
     pub candidates: Vec<&'static str>,
     /// A key no input reads: the input it looks meant for, and why.
@@ -176,8 +176,8 @@ impl Discovery {
             let k = keys.entry(key.clone()).or_insert_with(|| blank(key));
             // The bridge's word beats the bytes.
             if let Some(rt) = RosType::from_name(ty) {
-                k.format = Some(Format::Ros2.as_str());
-                k.kinds = vec![rt.kind().as_str()];
+                k.format = Some(Format::Ros2);
+                k.kinds = vec![rt.kind()];
                 k.candidates.clear();
             }
             k.ros_type = Some(ty.clone());
@@ -268,8 +268,8 @@ fn blank(key: &str) -> DiscoveredKey {
 }
 
 fn describe(k: &mut DiscoveredKey, s: &Sniffed) {
-    k.format = Some(s.format.as_str());
-    k.kinds = s.kinds.iter().map(|k| k.as_str()).collect();
+    k.format = Some(s.format);
+    k.kinds = s.kinds.clone();
     k.message = s.message.clone();
     if let Some(t) = s.ros_type {
         k.ros_type = Some(t.ros2_name().to_string());
@@ -328,7 +328,7 @@ fn near(k: &DiscoveredKey, inputs: &[InputConfig]) -> Option<Near> {
     }
     let kind = *k.kinds.first()?;
     let i = enabled()
-        .filter(|i| i.kind.as_str() == kind)
+        .filter(|i| i.kind == kind)
         .min_by_key(|i| crate::codec::edit_distance(last_part(&i.key), last_part(&k.key)))?;
     Some(Near {
         input: i.id.clone(),
@@ -383,14 +383,10 @@ pub fn propose(d: &Discovered) -> Vec<Proposed> {
     let mut out: Vec<Proposed> = Vec::new();
     let mut raw: Vec<(&DiscoveredKey, SensorKind)> = Vec::new();
     for k in d.keys.iter().filter(|k| !k.own_output) {
-        let format = match k.format.and_then(format_of) {
-            Some(f) => f,
-            None => continue,
-        };
-        let ros_type = k.ros_type.as_deref().and_then(RosType::from_name);
-        let Some(kind) = k.kinds.first().and_then(|s| kind_of(s)) else {
+        let (Some(format), Some(&kind)) = (k.format, k.kinds.first()) else {
             continue;
         };
+        let ros_type = k.ros_type.as_deref().and_then(RosType::from_name);
         let seen = match k.last_age_ms {
             Some(_) => format!("{:.1} Hz", k.mean_rate_hz),
             None => "announced, nothing seen yet".into(),
@@ -410,7 +406,7 @@ pub fn propose(d: &Discovered) -> Vec<Proposed> {
         };
         let (key, format) = match format {
             Format::MavlinkRaw => {
-                raw.extend(k.kinds.iter().filter_map(|s| kind_of(s)).map(|kd| (k, kd)));
+                raw.extend(k.kinds.iter().map(|&kd| (k, kd)));
                 continue;
             }
             // mavlink-server's all-messages key: its per-message keys are read instead.
@@ -419,7 +415,7 @@ pub fn propose(d: &Discovered) -> Vec<Proposed> {
             _ => (k.key.clone(), format),
         };
         out.push(Proposed {
-            id: String::new(),
+            id: id_for(kind, k.message.as_deref()).to_string(),
             kind,
             key,
             format,
@@ -433,7 +429,7 @@ pub fn propose(d: &Discovered) -> Vec<Proposed> {
             continue;
         }
         out.push(Proposed {
-            id: String::new(),
+            id: id_for(kind, None).to_string(),
             kind,
             key: k.key.clone(),
             format: Format::MavlinkRaw,
@@ -443,43 +439,15 @@ pub fn propose(d: &Discovered) -> Vec<Proposed> {
         });
     }
     // Ids by kind (imu, gps, …), numbered when a kind repeats.
-    let mut used: BTreeMap<&'static str, usize> = BTreeMap::new();
-    let messages: Vec<Option<String>> = out
-        .iter()
-        .map(|p| {
-            d.keys
-                .iter()
-                .find(|k| k.key == p.key)
-                .and_then(|k| k.message.clone())
-        })
-        .collect();
-    for (p, m) in out.iter_mut().zip(messages) {
-        let base = id_for(p.kind, m.as_deref());
-        let n = used.entry(base).or_insert(0);
+    let mut used: BTreeMap<String, usize> = BTreeMap::new();
+    for p in &mut out {
+        let n = used.entry(p.id.clone()).or_insert(0);
         *n += 1;
-        p.id = if *n == 1 {
-            base.to_string()
-        } else {
-            format!("{base}_{n}")
-        };
+        if *n > 1 {
+            p.id = format!("{}_{n}", p.id);
+        }
     }
     out
-}
-
-fn format_of(s: &str) -> Option<Format> {
-    [
-        Format::Ros2,
-        Format::Ros1,
-        Format::MavlinkJson,
-        Format::MavlinkRaw,
-        Format::Json,
-    ]
-    .into_iter()
-    .find(|f| f.as_str() == s)
-}
-
-fn kind_of(s: &str) -> Option<SensorKind> {
-    SensorKind::ALL.into_iter().find(|k| k.as_str() == s)
 }
 
 /// zenoh-plugin-ros1's key `<hex(type)>/<md5>/[<ns>/]<topic>` → the topic.
@@ -633,7 +601,7 @@ mod tests {
         assert!(by_key("skyfuse/v1/pose").own_output);
         let gps = by_key("gps/fix");
         assert_eq!((gps.type_from, gps.last_age_ms), (Some("announced"), None));
-        assert_eq!(gps.kinds, vec!["gnss"]);
+        assert_eq!(gps.kinds, vec![SensorKind::Gnss]);
 
         let proposed = propose(&v);
         let ids: Vec<(&str, &str)> = proposed

@@ -133,10 +133,10 @@ fn table_text(d: &Discovered) -> String {
             Some(_) => format!("{:.1} Hz", k.mean_rate_hz),
             None => "-".into(),
         };
-        let what = match (&k.format, &k.ros_type, &k.message) {
+        let what = match (k.format, &k.ros_type, &k.message) {
             (_, Some(t), _) => format!(
                 "{} {t}{}",
-                k.format.unwrap_or("ros2"),
+                k.format.unwrap_or(crate::codec::Format::Ros2),
                 if k.type_from == Some("announced") {
                     " (bridge)"
                 } else {
@@ -153,7 +153,8 @@ fn table_text(d: &Discovered) -> String {
         let what = if k.kinds.is_empty() {
             what
         } else {
-            format!("{what} ({})", k.kinds.join("+"))
+            let kinds: Vec<&str> = k.kinds.iter().map(|k| k.as_str()).collect();
+            format!("{what} ({})", kinds.join("+"))
         };
         let input = if k.own_output {
             "(this service's output)".to_string()
