@@ -6,12 +6,22 @@ mod common;
 use common::*;
 use std::time::Duration;
 
+/// The tests that drive Chromium or load the service take turns: two browsers and two
+/// demos at once on a 2-core machine starve the pages' websockets, and a page that
+/// falls behind shows the gaps of the frames it lost.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn json(text: &str) -> serde_json::Value {
     serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
 }
 
 #[test]
 fn the_page_draws_live_data_and_an_injected_fault_reaches_the_log_and_its_tile() {
+    let _turn = one_at_a_time();
     if skip_requested("browser", "the dashboard in Chromium") {
         return;
     }
@@ -178,6 +188,7 @@ fn prometheus_reads_the_metrics_and_they_agree_with_the_status() {
 
 #[test]
 fn a_client_that_never_reads_does_not_slow_the_others() {
+    let _turn = one_at_a_time();
     let svc = Service::start(&["demo", "--no-browser"], &[]);
     svc.wait_status(Duration::from_secs(20), |s| s["estimator"]["valid"] == true);
     let out = json(&run_py(
@@ -243,6 +254,7 @@ fn self_signed(dir: &std::path::Path, name: &str) -> (String, String) {
 
 #[test]
 fn https_serves_page_and_api_over_tls_only_and_the_healthcheck_asks_over_tls() {
+    let _turn = one_at_a_time();
     let dir = TempDir::new("https");
     let (cert, key) = self_signed(&dir, "https");
     let env = [
@@ -305,6 +317,7 @@ fn https_serves_page_and_api_over_tls_only_and_the_healthcheck_asks_over_tls() {
 /// publishes to (every card names the key it waits for, nothing sending, not "live").
 #[test]
 fn the_page_says_what_the_api_says() {
+    let _turn = one_at_a_time();
     if skip_requested("browser", "the page against the API in Chromium") {
         return;
     }
