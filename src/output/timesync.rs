@@ -90,7 +90,8 @@ impl TimeSync {
             self.answered += 1;
             return Handled::Answer { tc1: now_ns, ts1 };
         }
-        let rtt = now_ns - ts1;
+        // ts1 comes from the link: an echo of ours, or anything at all.
+        let rtt = now_ns.checked_sub(ts1).unwrap_or(i64::MAX);
         if ts1 <= 0 || rtt <= 0 || rtt > MAX_RTT_NS {
             self.rejected += 1;
             return Handled::Rejected;
@@ -280,6 +281,13 @@ mod tests {
     #[test]
     fn nonsense_answers_are_rejected() {
         let mut ts = TimeSync::default();
+        // Extremes that overflow a plain subtraction.
+        assert_eq!(ts.on_message(5, 1, i64::MIN), Handled::Rejected);
+        assert_eq!(
+            ts.on_message(i64::MAX, i64::MAX, i64::MIN),
+            Handled::Rejected
+        );
+        ts = TimeSync::default();
         // An answer to a request we never sent (ts1 in the future), and one a minute late.
         assert_eq!(ts.on_message(5, 2_000, 1_000), Handled::Rejected);
         assert_eq!(ts.on_message(5, 1, 60_000_000_000), Handled::Rejected);
