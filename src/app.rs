@@ -94,7 +94,11 @@ pub async fn run_with(
     let recorder = recorder.map(Arc::new);
     let started_us = now_us();
     let hub = Arc::new(Hub::default());
-    let shared = Arc::new(PipelineShared::new(hub.clone(), started_us));
+    let shared = Arc::new(PipelineShared::new(
+        hub.clone(),
+        started_us,
+        ingest.clock.clone(),
+    ));
     let (pose_tx, pose_rx) = watch::channel(None);
     let (pose_out_tx, pose_out_rx) = watch::channel(None);
     let (debug_tx, debug_rx) = watch::channel(Arc::new(crate::estimator::DebugSeries::default()));
@@ -139,6 +143,7 @@ pub async fn run_with(
                 enabled: i.enabled,
             })
             .collect(),
+        follow_vehicle_clock: config.ingest.follow_vehicle_clock,
     };
     let (vpe, vpe_zenoh) = mavlink_out::start(
         config.mavlink.clone(),
@@ -146,6 +151,7 @@ pub async fn run_with(
         mavlink_stats.clone(),
         endpoints,
         tap.clone(),
+        shared.time.clone(),
     );
     let vpe_on_pose = vpe.clone();
     let inlet = Arc::new(pipeline::Inlet::new(

@@ -307,6 +307,10 @@ pub struct IngestConfig {
     /// An input arriving faster than this many times its `rate_hz` (plus 20 Hz) has
     /// the excess shed and counted; 0 disables the limit.
     pub max_rate_factor: f64,
+    /// When the first IMU input's stamps run at a steady rate other than the host's
+    /// (a simulator at `--speedup 5`), the estimator runs on that clock and the
+    /// MAVLink output follows its rate. Off: the host's clock always.
+    pub follow_vehicle_clock: bool,
 }
 
 impl Default for IngestConfig {
@@ -314,6 +318,7 @@ impl Default for IngestConfig {
         Self {
             channel_capacity: DEFAULT_CHANNEL_CAPACITY,
             max_rate_factor: DEFAULT_MAX_RATE_FACTOR,
+            follow_vehicle_clock: true,
         }
     }
 }

@@ -5,6 +5,7 @@
 //! kept for the HTTP API. The estimator's task ([`run`]) does the periodic health check
 //! and the control API's [`Command`]s.
 
+use crate::clock::{RateChange, SharedTimeBase, TimeBase, VehicleClockWatch};
 use crate::estimator::{
     DebugSeries, DebugTopic, Estimator, EstimatorConfig, EstimatorEvent, EstimatorStatus, Event,
     FusedPose,
@@ -14,7 +15,7 @@ use crate::health::{HealthConfig, HealthState, Reason};
 use crate::hub::Hub;
 use crate::ingest::{Ingest, InputStatus};
 use crate::protocol::{FlowPlot, ServerFrame, Tick, TickPose};
-use crate::sample::{Micros, Sample};
+use crate::sample::{Micros, Sample, SensorKind};
 use serde_json::Value;
 use std::collections::{BTreeMap, VecDeque};
 use std::future::Future;
@@ -45,13 +46,17 @@ pub struct PipelineShared {
     pub started_us: Micros,
     /// Events for the outputs (a lagging receiver loses the oldest, counted there).
     pub events_tx: broadcast::Sender<Arc<Value>>,
+    /// The clock the estimator runs on (the host's, or a faster simulator's).
+    pub time: Arc<SharedTimeBase>,
 }
 
 /// Events buffered for slow event consumers.
 const EVENT_BUFFER: usize = 256;
 
 impl PipelineShared {
-    pub fn new(hub: Arc<Hub>, started_us: Micros) -> Self {
+    /// `time`: the estimator's clock, shared with ingest (its flood limit follows the
+    /// vehicle's rate) and the outputs.
+    pub fn new(hub: Arc<Hub>, started_us: Micros, time: Arc<SharedTimeBase>) -> Self {
         Self {
             hub,
             status: Mutex::new(None),
@@ -60,6 +65,7 @@ impl PipelineShared {
             events: AtomicU64::new(0),
             started_us,
             events_tx: broadcast::channel(EVENT_BUFFER).0,
+            time,
         }
     }
 
@@ -109,7 +115,7 @@ pub struct TickBuilder {
 }
 
 impl TickBuilder {
-    /// A tick if one is due at estimator time `t`.
+    /// A tick if one is due at host time `t` (the estimator's, mapped).
     pub fn build(&mut self, est: &Estimator, t: i64, started_us: Micros) -> Option<Tick> {
         if let Some(last) = self.last_tick_us {
             if t >= last && t - last < TICK_INTERVAL_US {
@@ -167,10 +173,25 @@ impl TickBuilder {
 }
 
 /// Everything the estimator is built from.
+#[derive(Clone)]
 pub struct PipelineConfig {
     pub estimator: EstimatorConfig,
     pub health: HealthConfig,
     pub inputs: InputList,
+    /// Run the estimator on the vehicle's clock when the reference IMU's stamps run at
+    /// another rate than the host's (`[ingest] follow_vehicle_clock`).
+    pub follow_vehicle_clock: bool,
+}
+
+impl PipelineConfig {
+    /// The input whose stamps are the vehicle's clock: the first enabled IMU (it drives
+    /// the filter's prediction, and an autopilot stamps it with its own clock).
+    pub fn clock_reference(&self) -> Option<&str> {
+        self.inputs
+            .iter()
+            .find(|i| i.enabled && i.kind == SensorKind::Imu)
+            .map(|i| i.id.as_str())
+    }
 }
 
 /// Where the estimator's results go.
@@ -232,7 +253,13 @@ const HEALTH_TICK: std::time::Duration = std::time::Duration::from_millis(100);
 /// The estimator and where its results go: everything a sample touches. Whichever
 /// thread holds it fuses (see [`Inlet`]).
 pub struct Pipeline {
+    config: PipelineConfig,
     fusion: Fusion,
+    /// The estimator's clock (see [`TimeBase`]); samples, ticks and commands are mapped
+    /// onto it, and poses, events and series back to the host's as they leave.
+    base: TimeBase,
+    clock_reference: Option<String>,
+    clock_watch: VehicleClockWatch,
     ticks: TickBuilder,
     last_pose_us: Option<i64>,
     outputs: PipelineOutputs,
@@ -248,8 +275,20 @@ impl Pipeline {
         shared: Arc<PipelineShared>,
         outputs: PipelineOutputs,
     ) -> Self {
+        let clock_reference = config
+            .follow_vehicle_clock
+            .then(|| config.clock_reference().map(str::to_string))
+            .flatten();
         Self {
-            fusion: Fusion::new(config.estimator, config.health, &config.inputs),
+            fusion: Fusion::new(
+                config.estimator.clone(),
+                config.health.clone(),
+                &config.inputs,
+            ),
+            config,
+            base: TimeBase::HOST,
+            clock_reference,
+            clock_watch: VehicleClockWatch::default(),
             ticks: TickBuilder::default(),
             last_pose_us: None,
             outputs,
@@ -263,12 +302,32 @@ impl Pipeline {
     /// first, then the rest.
     fn sample(&mut self, s: &Sample) {
         self.shared.consumed.fetch_add(1, Relaxed);
-        let events = self.fusion.process(s, s.arrival_us);
+        if let (Some(stamp), Some(reference)) = (s.stamp_us, &self.clock_reference) {
+            if **reference == *s.source {
+                if let Some(change) = self.clock_watch.observe(s.arrival_us, stamp, &self.base) {
+                    self.rebase(change, s.arrival_us);
+                }
+            }
+        }
+        let mapped;
+        let s = if self.base.is_host() {
+            s
+        } else {
+            mapped = Sample {
+                arrival_us: self.base.to_fusion(s.arrival_us),
+                ..s.clone()
+            };
+            &mapped
+        };
+        let mut events = self.fusion.process(s, s.arrival_us);
+        self.events_to_host(&mut events);
+        let base = self.base;
         let est = &self.fusion.est;
         let out = &mut self.outputs;
-        if let Some(p) = est.pose() {
+        if let Some(mut p) = est.pose() {
             if self.last_pose_us != Some(p.time_us) {
                 self.last_pose_us = Some(p.time_us);
+                p.time_us = base.to_host(p.time_us);
                 // From this thread, before anything else: no hop, no wait.
                 (out.on_pose)(&p);
                 let p = Arc::new(p);
@@ -280,10 +339,19 @@ impl Pipeline {
         }
         publish_events(&self.shared, &events);
         let Some(t) = est.state_time() else { return };
+        // Dashboards and debug topics at their rates on the host's clock, whatever the
+        // estimator's runs at.
+        let t = base.to_host(t);
         // The debug series change with nearly every sample: shared at their own rate,
         // so nobody is woken (and nothing copied) per sample.
-        if out.debug_rate.due(t) && **out.debug.borrow() != *est.debug() {
-            out.debug.send_replace(Arc::new(est.debug().clone()));
+        if out.debug_rate.due(t) {
+            let mut debug = est.debug().clone();
+            for pt in debug.series.values_mut() {
+                pt.time_us = base.to_host(pt.time_us);
+            }
+            if **out.debug.borrow() != debug {
+                out.debug.send_replace(Arc::new(debug));
+            }
         }
         if let Some(tick) = self.ticks.build(est, t, self.shared.started_us) {
             let frame = ServerFrame::Tick(Box::new(tick));
@@ -291,9 +359,64 @@ impl Pipeline {
         }
     }
 
+    /// The reference input's clock changed rate: follow it (a new rate means a new
+    /// estimator, since its state was integrated over the other clock's time).
+    fn rebase(&mut self, change: RateChange, arrival_us: Micros) {
+        let reference = self.clock_reference.clone().unwrap_or_default();
+        match change {
+            RateChange::Refine(b) => {
+                self.base = b;
+                self.shared.time.set(b, Some(reference));
+            }
+            RateChange::Rebase(b) => {
+                let message = if b.is_host() {
+                    format!("{reference}'s clock runs at the host's rate again: the estimator starts again on the host's clock")
+                } else {
+                    format!(
+                        "{reference}'s clock runs {:.2}× the host's (a simulator faster than real time?): the estimator starts again on it, and the outputs follow its rate",
+                        b.rate
+                    )
+                };
+                tracing::warn!("{message}");
+                self.base = b;
+                self.shared
+                    .time
+                    .set(b, (!b.is_host()).then_some(reference.clone()));
+                self.fusion = Fusion::new(
+                    self.config.estimator.clone(),
+                    self.config.health.clone(),
+                    &self.config.inputs,
+                );
+                self.last_pose_us = None;
+                self.ticks = TickBuilder::default();
+                let event = EstimatorEvent::new(
+                    arrival_us,
+                    Some(&reference),
+                    message,
+                    Event::TimeBase {
+                        rate: b.rate,
+                        reference: reference.clone(),
+                    },
+                );
+                publish_events(&self.shared, &[event]);
+            }
+        }
+    }
+
+    /// Events leave on the host's clock.
+    fn events_to_host(&self, events: &mut [EstimatorEvent]) {
+        if !self.base.is_host() {
+            for e in events {
+                e.time_us = self.base.to_host(e.time_us);
+            }
+        }
+    }
+
     /// The periodic health check (with or without samples), ingest's rejections and
     /// clock restarts counted against the sensors, and the status snapshot refreshed.
     fn health_tick(&mut self, inputs: &[InputStatus], now: i64) {
+        let host_now = now;
+        let now = self.base.to_fusion(now);
         for st in inputs {
             let seen = self.rejected_seen.entry(st.id.clone()).or_insert(0);
             if st.rejected > *seen {
@@ -306,7 +429,7 @@ impl Pipeline {
                 *seen = st.clock_restarts;
                 let text = st.last_clock_restart.clone().unwrap_or_default();
                 let event = EstimatorEvent::new(
-                    now,
+                    host_now,
                     Some(&st.id),
                     format!("{}: {text}", st.id),
                     Event::ClockRestart {
@@ -316,18 +439,23 @@ impl Pipeline {
                 publish_events(&self.shared, &[event]);
             }
         }
-        let events = self.fusion.tick(now);
+        let mut events = self.fusion.tick(now);
+        self.events_to_host(&mut events);
         publish_events(&self.shared, &events);
         self.refresh_status();
     }
 
     fn command(&mut self, cmd: Command) -> Vec<EstimatorEvent> {
+        let base = self.base;
         let est = &mut self.fusion.est;
-        let now = est.state_time().unwrap_or_else(crate::clock::now_us);
-        let events = match cmd {
+        let now = est
+            .state_time()
+            .unwrap_or_else(|| base.to_fusion(crate::clock::now_us()));
+        let mut events = match cmd {
             Command::ResetOrigin => est.reset_origin(now),
             Command::StartFlowCalibration => est.start_flow_calibration(now),
         };
+        self.events_to_host(&mut events);
         publish_events(&self.shared, &events);
         self.refresh_status();
         events
@@ -335,7 +463,11 @@ impl Pipeline {
 
     fn refresh_status(&self) {
         let st = self.fusion.est.state_summary();
-        let h = verdicts(&self.fusion, &st, crate::clock::now_us());
+        let h = verdicts(
+            &self.fusion,
+            &st,
+            self.base.to_fusion(crate::clock::now_us()),
+        );
         *crate::sync::lock(&self.shared.status) = Some(st);
         *crate::sync::lock(&self.shared.health) = h;
     }
@@ -525,7 +657,7 @@ pub fn publish_events(shared: &PipelineShared, events: &[EstimatorEvent]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sample::{Imu, SensorData, SensorKind};
+    use crate::sample::{Imu, SensorData};
     use nalgebra::Vector3;
 
     #[test]
@@ -588,7 +720,11 @@ mod tests {
 
     /// An inlet with a real pipeline (one IMU input).
     fn inlet(capacity: usize) -> (Arc<Inlet>, Arc<PipelineShared>) {
-        let shared = Arc::new(PipelineShared::new(Arc::new(Hub::default()), 0));
+        let shared = Arc::new(PipelineShared::new(
+            Arc::new(Hub::default()),
+            0,
+            Default::default(),
+        ));
         let config = PipelineConfig {
             estimator: EstimatorConfig::default(),
             health: HealthConfig::default(),
@@ -598,6 +734,7 @@ mod tests {
                 rate_hz: 200.0,
                 enabled: true,
             }],
+            follow_vehicle_clock: true,
         };
         let outputs = PipelineOutputs {
             on_pose: Box::new(|_| {}),
@@ -620,6 +757,39 @@ mod tests {
                 std::panic::resume_unwind(panic);
             }
         });
+    }
+
+    #[test]
+    fn an_imu_clock_at_five_times_the_hosts_becomes_the_estimators() {
+        let (inlet, shared) = inlet(8);
+        let mut events = shared.events_tx.subscribe();
+        // 6 host seconds of a 200 Hz IMU whose stamps run 5× the host's.
+        for i in 0..6_000_i64 {
+            let mut s = imu(0);
+            s.stamp_us = Some(3_000_000 + i * 5_000);
+            s.arrival_us = 1_700_000_000_000_000 + i * 1_000;
+            inlet.push(s).unwrap();
+        }
+        let base = shared.time.get();
+        assert!((base.rate - 5.0).abs() < 0.01, "{base:?}");
+        assert_eq!(shared.time.reference().as_deref(), Some("imu"));
+        // Said once, as an event on the host's clock.
+        let mut seen = vec![];
+        while let Ok(e) = events.try_recv() {
+            if e["kind"] == "time_base" {
+                seen.push(e);
+            }
+        }
+        assert_eq!(seen.len(), 1, "{seen:?}");
+        let t = seen[0]["time_us"].as_i64().unwrap_or(0);
+        assert!((t - 1_700_000_004_000_000).abs() < 100_000, "{}", seen[0]);
+        assert_eq!(seen[0]["data"]["reference"], "imu");
+        // The estimator runs on the IMU's clock: its state time is the stamps'.
+        let now = inlet
+            .with(|p| p.fusion.est.state_time())
+            .flatten()
+            .unwrap_or(0);
+        assert!((now - (3_000_000 + 5_999 * 5_000)).abs() < 50_000, "{now}");
     }
 
     #[test]

@@ -777,7 +777,7 @@
   // ------------------------------------------------------------------ events
   // Event kinds (web/PROTOCOL.md) → [label, colour class]; an unknown kind shows as info.
   const KINDS = {
-    health: ['health', 'health'], source_usable: ['usable', 'health'], clock_restart: ['clock', 'health'],
+    health: ['health', 'health'], source_usable: ['usable', 'health'], clock_restart: ['clock', 'health'], time_base: ['clock', 'health'],
     source_switch: ['switch', 'source_switch'], segment: ['segment', 'source_switch'],
     reset: ['reset', 'reset'], terrain_reset: ['terrain', 'reset'], origin_set: ['origin', 'reset'],
     monitor_reset: ['monitor', 'monitor'], handled: ['handled', 'monitor'], constraint: ['constraint', 'monitor'],

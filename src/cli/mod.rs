@@ -131,6 +131,10 @@ pub enum Command {
         /// (`.bin`: IMU, ATT, OF, RFND, GPS, BARO, VISP records) instead of publishing.
         #[arg(long, value_name = "FILE", conflicts_with_all = ["out", "ulog"])]
         dataflash: Option<PathBuf>,
+        /// Run this many times faster than real time, as SITL's `--speedup` (the
+        /// samples' stamps on the simulator's clock); publishing only.
+        #[arg(long, default_value_t = 1.0, value_parser = parse_speedup)]
+        speedup: f64,
         /// The simulated IMU's rate, Hz (default: the scenario's, 200 Hz).
         #[arg(long, value_name = "HZ")]
         imu_hz: Option<f64>,
@@ -272,6 +276,14 @@ pub struct NetArgs {
 }
 
 /// `LAT,LON[,ALT]` in degrees and metres.
+fn parse_speedup(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(x) if (0.1..=20.0).contains(&x) => Ok(x),
+        Ok(_) => Err(format!("{s:?}: between 0.1 and 20")),
+        Err(e) => Err(format!("{s:?}: {e}")),
+    }
+}
+
 fn parse_home(s: &str) -> Result<(f64, f64, f64), String> {
     let v: Vec<f64> = s
         .split(',')
@@ -641,6 +653,7 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             duration,
             scenario,
             imu_hz,
+            speedup,
             ..
         } => {
             let scn = scenario_at(&scenario, imu_hz)?;
@@ -659,8 +672,15 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
                 sim.set_home(lat, lon, alt);
             }
             let counters = Arc::new(publish::PublishCounters::default());
-            let n =
-                publish::run_publisher(session.clone(), Arc::new(c), sim, counters, shutdown).await;
+            let n = publish::run_publisher(
+                session.clone(),
+                Arc::new(c),
+                sim,
+                speedup,
+                counters,
+                shutdown,
+            )
+            .await;
             tracing::info!(published = n, "sim finished");
             let _ = session.close().await;
             Ok(())
@@ -841,6 +861,7 @@ async fn demo(
         sim_session.clone(),
         Arc::new(sim_cfg),
         sim,
+        1.0,
         counters,
         async move {
             let _ = sim_stop.changed().await;

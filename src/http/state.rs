@@ -82,6 +82,7 @@ impl AppState {
                 queue_capacity,
                 queue_len: queue_capacity - queue_free,
                 consumed: self.pipeline.consumed.load(Relaxed),
+                clock: ClockInfo::of(&self.pipeline.time),
             },
             sensors: self.sensors(now),
             estimator: self.pipeline.estimator_status(),
@@ -282,6 +283,30 @@ pub struct IngestInfo {
     pub queue_capacity: usize,
     pub queue_len: usize,
     pub consumed: u64,
+    /// The clock the estimator runs on.
+    pub clock: ClockInfo,
+}
+
+/// `ingest.clock`: `"host"`, or `"vehicle"` when the reference IMU's stamps run at
+/// another rate (a simulator faster than real time) and the estimator follows them.
+#[derive(Debug, Clone, Serialize)]
+pub struct ClockInfo {
+    pub base: &'static str,
+    /// The estimator's clock against the host's (5.0 for SITL at `--speedup 5`).
+    pub rate: f64,
+    /// The input whose stamps are that clock (null on the host's).
+    pub reference: Option<String>,
+}
+
+impl ClockInfo {
+    pub fn of(time: &crate::clock::SharedTimeBase) -> Self {
+        let base = time.get();
+        Self {
+            base: if base.is_host() { "host" } else { "vehicle" },
+            rate: (base.rate * 1e4).round() / 1e4,
+            reference: time.reference(),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Serialize)]

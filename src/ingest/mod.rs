@@ -317,6 +317,9 @@ pub struct Ingest {
     /// ROS 2 topics the bridges announce (filled by `ros_graph::discover`): the type of
     /// `type = "auto"` inputs, and a check of configured types.
     pub ros_topics: crate::ros_graph::TopicTable,
+    /// The estimator's clock: a vehicle clock running N× the host's (a fast
+    /// simulator) brings N× the samples per host second, which is no flood.
+    pub clock: Arc<crate::clock::SharedTimeBase>,
 }
 
 impl Ingest {
@@ -331,6 +334,7 @@ impl Ingest {
             own_mav: (config.mavlink.system_id, config.mavlink.component_id),
             max_rate_factor: config.ingest.max_rate_factor,
             ros_topics: Default::default(),
+            clock: Default::default(),
         }
     }
 
@@ -436,15 +440,22 @@ impl Ingest {
             }
             {
                 let mut h = input.history();
-                let limit = self.max_rate_factor * input.config.rate_hz + FLOOD_SLACK_HZ;
+                let limit = self.max_rate_factor * input.config.rate_hz * self.clock.rate()
+                    + FLOOD_SLACK_HZ;
                 if self.max_rate_factor > 0.0
                     && input.config.rate_hz > 0.0
                     && !h.admit(arrival_us, limit)
                 {
                     drop(h);
                     c.shed.fetch_add(1, Relaxed);
+                    let rate = self.clock.rate();
+                    let clock = if rate == 1.0 {
+                        String::new()
+                    } else {
+                        format!(" on a vehicle clock at {rate:.2}×")
+                    };
                     let text = format!(
-                        "arriving above {limit:.0} Hz ({}× its rate_hz {} + {FLOOD_SLACK_HZ} Hz): the excess is shed",
+                        "arriving above {limit:.0} Hz ({}× its rate_hz {}{clock} + {FLOOD_SLACK_HZ} Hz): the excess is shed",
                         self.max_rate_factor, input.config.rate_hz
                     );
                     input.note_error(text, "flooding", arrival_us);

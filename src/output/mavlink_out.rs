@@ -577,6 +577,9 @@ pub struct VpeSender {
     zenoh: Option<mpsc::Sender<ZenohFrame>>,
     /// The Zenoh routes' counters (`zenoh:…` links).
     zenoh_stats: Vec<Arc<LinkStats>>,
+    /// The estimator's clock: the VPE rate, its age limit and the heartbeat are kept
+    /// in it (the autopilot's time when it runs faster than real time).
+    time: Arc<crate::clock::SharedTimeBase>,
 }
 
 /// The sender, shared by the fusing thread (new poses) and the output task (timer).
@@ -590,6 +593,7 @@ pub fn start(
     stats: Arc<MavlinkStats>,
     endpoints: Vec<Endpoint>,
     tap: crate::tap::Tap,
+    time: Arc<crate::clock::SharedTimeBase>,
 ) -> (VpeHandle, Option<mpsc::Receiver<ZenohFrame>>) {
     // Checked with the config; a key that cannot be read here leaves frames unsigned,
     // said in the log.
@@ -664,6 +668,7 @@ pub fn start(
         tap,
         zenoh,
         zenoh_stats,
+        time,
     };
     (Arc::new(Mutex::new(sender)), zenoh_rx)
 }
@@ -681,11 +686,14 @@ impl VpeSender {
     fn step(&mut self, now: i64, current: Option<&FusedPose>, fresh: bool) {
         let cfg = &self.cfg;
         let stats = &self.stats;
-        let due = self.next_due.is_none_or(|d| now + SEND_SLACK_US >= d);
+        // Host µs per µs of the estimator's clock (1 unless a simulator runs fast).
+        let base = self.time.get();
+        let host = |fusion_us: i64| (fusion_us as f64 / base.rate) as i64;
+        let due = self.next_due.is_none_or(|d| now + host(SEND_SLACK_US) >= d);
         let heartbeat_due = cfg.heartbeat
             && self
                 .last_heartbeat
-                .is_none_or(|h| now - h >= HEARTBEAT_INTERVAL_US);
+                .is_none_or(|h| now - h >= host(HEARTBEAT_INTERVAL_US));
         let timesync_due = !stats.links.is_empty()
             && self
                 .last_timesync
@@ -706,10 +714,13 @@ impl VpeSender {
             ));
         }
         // Poses and the origin carry the autopilot's time once TIMESYNC knows it (PX4
-        // stamps them at arrival until then); before, our clock as always.
+        // stamps them at arrival until then); before, the estimator's clock (ours, or
+        // the vehicle's when it runs at another rate).
         let autopilot_us = |t: i64| -> u64 {
             let remote = crate::sync::lock(&stats.timesync).remote_ns(t.saturating_mul(1000));
-            remote.map_or(t, |ns| ns / 1000).max(0) as u64
+            remote
+                .map_or_else(|| base.to_fusion(t), |ns| ns / 1000)
+                .max(0) as u64
         };
         let valid_now = current.is_some_and(|p| p.valid);
         if heartbeat_due {
@@ -740,9 +751,9 @@ impl VpeSender {
         let outcome = match current {
             _ if !due => Ok(None),
             None => Err("estimator not initialised".to_string()),
-            Some(p) if now - p.time_us > self.max_age_us => Err(format!(
+            Some(p) if base.scale(now - p.time_us) > self.max_age_us => Err(format!(
                 "estimate stale: newest is {} ms old (limit {} ms)",
-                (now - p.time_us) / 1000,
+                base.scale(now - p.time_us) / 1000,
                 cfg.max_age_ms
             )),
             // The same pose twice would tell the autopilot time stood still.
@@ -756,7 +767,7 @@ impl VpeSender {
                 }
             }
         };
-        let period_us = self.period_us;
+        let period_us = host(self.period_us);
         let advance = |next_due: &mut Option<i64>| {
             let base = match *next_due {
                 Some(d) if (now - d).abs() <= period_us => d,

@@ -66,12 +66,15 @@ fn routes(config: &Config, streams: &[StreamSpec]) -> Vec<Option<Route>> {
         .collect()
 }
 
-/// Run the simulator in real time, publishing on `session` until it ends or
-/// `shutdown` resolves. Returns the number of messages published.
+/// Run the simulator at `speedup` times real time (1: real time; 5: as SITL's
+/// `--speedup 5`, its stamps running five times the host's clock), publishing on
+/// `session` until it ends or `shutdown` resolves. Returns the number of messages
+/// published.
 pub async fn run_publisher(
     session: zenoh::Session,
     config: Arc<Config>,
     mut sim: Simulator,
+    speedup: f64,
     counters: Arc<PublishCounters>,
     shutdown: impl std::future::Future<Output = ()>,
 ) -> u64 {
@@ -95,13 +98,14 @@ pub async fn run_publisher(
         let Some(route) = routes.get(ev.stream).and_then(|r| r.as_ref()) else {
             continue;
         };
-        let due = start + std::time::Duration::from_secs_f64(ev.publish_t.max(0.0));
+        let due = start + std::time::Duration::from_secs_f64(ev.publish_t.max(0.0) / speedup);
         tokio::select! {
             _ = tokio::time::sleep_until(due) => {}
             _ = &mut shutdown => break,
         }
         let measured_us = (ev.measured_t * 1e6) as i64;
-        // ROS stamps are wall-clock; MAVLink stamps are time since the autopilot booted.
+        // ROS stamps are wall-clock (from the start, at the simulator's rate); MAVLink
+        // stamps are time since the autopilot booted.
         let stamp_us = match route.input.format {
             Format::MavlinkJson | Format::MavlinkRaw => measured_us,
             _ => epoch_us + measured_us,

@@ -128,6 +128,12 @@ pub enum Event {
     ClockRestart {
         clock_restarts: u64,
     },
+    /// The estimator moved to another clock: the vehicle's, running `rate` times the
+    /// host's (a simulator faster than real time), or back to the host's (rate 1).
+    TimeBase {
+        rate: f64,
+        reference: String,
+    },
     /// The Zenoh link to the routers was lost or is back.
     ZenohLink,
     /// A simulated fault started or ended (demo and `sim` only).
@@ -206,7 +212,7 @@ pub enum ConstraintChange {
 
 impl Event {
     /// Every kind, as `kind` names it (web/PROTOCOL.md lists these).
-    pub const KINDS: [&'static str; 20] = [
+    pub const KINDS: [&'static str; 21] = [
         "initialised",
         "origin_set",
         "reset",
@@ -224,6 +230,7 @@ impl Event {
         "constraint",
         "terrain_reset",
         "clock_restart",
+        "time_base",
         "zenoh_link",
         "fault_injected",
         "fault_cleared",
@@ -248,6 +255,7 @@ impl Event {
             Event::Constraint(_) => "constraint",
             Event::TerrainReset { .. } => "terrain_reset",
             Event::ClockRestart { .. } => "clock_restart",
+            Event::TimeBase { .. } => "time_base",
             Event::ZenohLink => "zenoh_link",
             Event::FaultInjected => "fault_injected",
             Event::FaultCleared => "fault_cleared",
@@ -350,6 +358,10 @@ mod tests {
                 test_ratio: 20.0,
             },
             Event::ClockRestart { clock_restarts: 1 },
+            Event::TimeBase {
+                rate: 5.0,
+                reference: "imu".into(),
+            },
             Event::ZenohLink,
             Event::FaultInjected,
             Event::FaultCleared,
