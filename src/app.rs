@@ -193,6 +193,7 @@ pub async fn run_with(
         controls_refused: AtomicU64::new(0),
         refusals: Default::default(),
         mavlink_stats: mavlink_stats.clone(),
+        vpe: vpe.clone(),
         zenoh_out_stats: zenoh_out_stats.clone(),
         started_us,
         zenoh_zid: zid.clone(),

@@ -138,3 +138,87 @@ fn a_signed_link_is_accepted_and_an_unsigned_sender_refused() {
     let text = format!("{status}{}", svc.log_text());
     assert!(!text.contains("correct horse"), "key leaked");
 }
+
+/// SETUP_SIGNING on request (issue 36): with a key configured, `POST
+/// /api/v1/control/setup-signing` (token needed) gives the key to an autopilot that had
+/// signing off; it then requires it, and skyfuse's frames pass. Never sent unasked, and
+/// refused (409, nothing sent) without a key.
+#[test]
+fn setup_signing_is_sent_on_request_and_the_autopilot_then_requires_the_key() {
+    let dir = TempDir::new("setup-signing");
+    std::fs::create_dir_all(&dir).expect("dir");
+    let key = dir.join("mavlink.key");
+    let phrase = "hover over the lake at dawn";
+    std::fs::write(&key, phrase).expect("key");
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .map(|a| a.port())
+        .expect("udp port")
+        .to_string();
+    let svc = Service::start(
+        &[
+            "demo",
+            "--no-browser",
+            "--mavlink",
+            &format!("udpout:127.0.0.1:{port}"),
+        ],
+        &[(
+            "SKYFUSE__MAVLINK__SIGNING_KEY_FILE",
+            key.to_str().expect("path"),
+        )],
+    );
+    let standin = std::process::Command::new(python())
+        .arg(repo_root().join("tests/py/timesync_standin.py"))
+        .args(["--port", &port, "--seconds", "9", "--accept-setup-signing"])
+        .args(["--passphrase-check", phrase])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("stand-in");
+    std::thread::sleep(std::time::Duration::from_secs(3));
+    let path = "/api/v1/control/setup-signing";
+    // Without the token: refused, nothing sent.
+    let (code, _) = http_post(svc.http_port, path, "", None).expect("POST");
+    assert_eq!(code, 401);
+    let (code, body) = http_post(svc.http_port, path, "", Some(&svc.token)).expect("POST");
+    assert_eq!(code, 200, "{body}");
+    let out = standin.wait_with_output().expect("stand-in output");
+    let out = json(&String::from_utf8_lossy(&out.stdout));
+    let setup = &out["setup_signing"];
+    eprintln!("setup-signing: {body}\nstand-in: {out}");
+    assert_eq!(setup["received"], 1, "{out}");
+    assert_eq!(setup["target_system"], 1, "{out}");
+    assert_eq!(setup["target_component"], 1, "{out}");
+    assert_eq!(setup["key_matches"], true, "{out}");
+    let skew = setup["initial_timestamp_vs_now_s"]
+        .as_f64()
+        .unwrap_or(f64::NAN);
+    assert!(skew.abs() < 2.0, "initial timestamp {skew} s off: {out}");
+    // Asked for ~3 s in, not at start.
+    assert!(setup["at_s"].as_f64() > Some(2.0), "{out}");
+    // From then on the autopilot requires the key: skyfuse's frames carry it.
+    assert_eq!(out["signing"]["enabled"], true, "{out}");
+    assert!(out["signing"]["good"].as_u64() > Some(50), "{out}");
+    assert_eq!(out["signing"]["bad"], 0, "{out}");
+    assert_eq!(out["signing"]["unsigned_rejected"], 0, "{out}");
+    let mav = mavlink_of(&svc.get_json("/api/v1/status"));
+    assert_eq!(mav["setup_signing_sent"], 1, "{mav}");
+    assert!(!svc.log_text().contains(phrase), "key leaked");
+
+    // No key configured: 409 and nothing sent.
+    let plain = Service::start(
+        &[
+            "demo",
+            "--no-browser",
+            "--mavlink",
+            &format!("udpout:127.0.0.1:{port}"),
+        ],
+        &[],
+    );
+    let (code, body) = http_post(plain.http_port, path, "", Some(&plain.token)).expect("POST");
+    assert_eq!(code, 409, "{body}");
+    assert!(body.contains("signing_key_file"), "{body}");
+    assert_eq!(
+        mavlink_of(&plain.get_json("/api/v1/status"))["setup_signing_sent"],
+        0
+    );
+}

@@ -168,6 +168,24 @@ async fn control(
     let cmd = match action.as_str() {
         "reset-origin" => Command::ResetOrigin,
         "flow-calibration" => Command::StartFlowCalibration,
+        "setup-signing" => {
+            // Only here, on request: the key crosses the link in the clear.
+            let sent = crate::sync::lock(&s.vpe).setup_signing(now);
+            return match sent {
+                Ok(n) => {
+                    let msg = format!(
+                        "SETUP_SIGNING sent to system {} on {n} link(s): it now takes only frames signed with our key",
+                        s.config.mavlink.target_system
+                    );
+                    Json(json!({ "ok": true, "message": msg })).into_response()
+                }
+                Err(e) => (
+                    StatusCode::CONFLICT,
+                    Json(json!({ "error": format!("SETUP_SIGNING not sent: {e}") })),
+                )
+                    .into_response(),
+            };
+        }
         "fault" => {
             let Some(inj) = s.faults.as_ref() else {
                 return bad("fault injection exists only in `skyfuse demo`".into());
@@ -187,7 +205,7 @@ async fn control(
         other => {
             return (
                 StatusCode::NOT_FOUND,
-                Json(json!({ "error": format!("unknown control {other:?}; known: reset-origin, flow-calibration, fault") })),
+                Json(json!({ "error": format!("unknown control {other:?}; known: reset-origin, flow-calibration, setup-signing, fault") })),
             )
                 .into_response()
         }

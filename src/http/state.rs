@@ -32,6 +32,8 @@ pub struct AppState {
     /// Refused control requests per peer address: (window start, count).
     pub refusals: std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, (Micros, u32)>>,
     pub mavlink_stats: Arc<MavlinkStats>,
+    /// The MAVLink output's sender (SETUP_SIGNING on request).
+    pub vpe: crate::output::mavlink_out::VpeHandle,
     pub zenoh_out_stats: Arc<ZenohOutStats>,
     pub started_us: Micros,
     pub zenoh_zid: String,

@@ -32,6 +32,8 @@ const HEARTBEAT_INTERVAL_US: i64 = 1_000_000;
 const CHECK_INTERVAL: Duration = Duration::from_millis(20);
 /// A pose this early for the schedule still goes (poses come every few ms).
 const SEND_SLACK_US: i64 = 2_000;
+/// The autopilot's own component (MAV_COMP_ID_AUTOPILOT1), the target of SETUP_SIGNING.
+const MAV_COMP_ID_AUTOPILOT1: u8 = 1;
 
 /// Counters of one endpoint.
 #[derive(Debug, Default)]
@@ -65,6 +67,8 @@ pub struct MavlinkStats {
     pub heartbeats: AtomicU64,
     /// SET_GPS_GLOBAL_ORIGIN messages sent (`[mavlink] ekf_origin`).
     pub origin_sent: AtomicU64,
+    /// SETUP_SIGNING messages sent (on request).
+    pub setup_signing_sent: AtomicU64,
     /// Ticks with nothing sent because the estimate was invalid, stale or non-finite.
     pub withheld: AtomicU64,
     pub not_sending_reason: Mutex<Option<String>>,
@@ -221,6 +225,7 @@ impl MavlinkStats {
                 configured_rate_hz: rate_hz,
                 heartbeats: self.heartbeats.load(Relaxed),
                 origin_sent: self.origin_sent.load(Relaxed),
+                setup_signing_sent: self.setup_signing_sent.load(Relaxed),
                 withheld: self.withheld.load(Relaxed),
                 reset_counter: self.last_reset_counter.load(Relaxed),
                 links,
@@ -674,6 +679,36 @@ pub fn start(
 }
 
 impl VpeSender {
+    /// SETUP_SIGNING to the autopilot (`target_system`, its autopilot component) with
+    /// our key and the signing clock's time now: the autopilot then takes only frames
+    /// signed with it. Sent only when asked (the control API), never at start: the key
+    /// crosses the link in the clear, so do it over a link you trust. Returns the
+    /// number of links it went to.
+    pub fn setup_signing(&mut self, now: i64) -> Result<usize, String> {
+        let key = self
+            .cfg
+            .signing_key()?
+            .ok_or("no [mavlink] signing_key_file: there is no key to give the autopilot")?;
+        if self.links.is_empty() && self.zenoh.is_none() {
+            return Err(NO_ENDPOINT.to_string());
+        }
+        let msg = mavlink::dialects::common::MavMessage::SETUP_SIGNING(
+            mavlink::dialects::common::SETUP_SIGNING_DATA {
+                initial_timestamp: crate::codec::mavlink::signing_timestamp(now),
+                target_system: self.cfg.target_system,
+                target_component: MAV_COMP_ID_AUTOPILOT1,
+                secret_key: key,
+            },
+        );
+        self.emit(now, vec![msg]);
+        self.stats.setup_signing_sent.fetch_add(1, Relaxed);
+        tracing::warn!(
+            target_system = self.cfg.target_system,
+            "SETUP_SIGNING sent on request: the autopilot now requires our key"
+        );
+        Ok(self.links.len() + usize::from(self.zenoh.is_some()))
+    }
+
     /// A new pose from the estimator: it goes out at once if a frame is due.
     pub fn on_pose(&mut self, pose: &FusedPose) {
         self.step(now_us(), Some(pose), true);
@@ -804,6 +839,12 @@ impl VpeSender {
                 *r = Some(why);
             }
         }
+        self.emit(now, frames);
+    }
+
+    /// Encode `frames` (signed per link when a key is set) and offer them to every link
+    /// and the Zenoh route.
+    fn emit(&mut self, now: i64, frames: Vec<mavlink::dialects::common::MavMessage>) {
         for msg in frames {
             self.seq = self.seq.wrapping_add(1);
             let header = MavHeader {

@@ -79,6 +79,8 @@ pub enum OutputDetail {
         configured_rate_hz: f64,
         heartbeats: u64,
         origin_sent: u64,
+        /// SETUP_SIGNING sent on request (`POST /api/v1/control/setup-signing`).
+        setup_signing_sent: u64,
         /// Ticks with nothing sent because the estimate was invalid, stale or non-finite.
         withheld: u64,
         reset_counter: u64,

@@ -10,6 +10,12 @@ time.
     python tests/py/timesync_standin.py --port P --seconds 12 [--rate 5] [--boot-s 1000]
         [--passphrase SECRET [--intruder]]
 
+With --accept-setup-signing it starts without signing and takes a SETUP_SIGNING as
+ArduPilot does: from then on its key is the one received, its frames are signed and
+skyfuse's unsigned frames are refused; it reports what it received (target, whether
+the key is --passphrase-check's SHA-256, the initial timestamp against its host's
+clock) and the signature counts after it.
+
 With --passphrase it requires MAVLink 2 signing as an autopilot with SETUP_SIGNING done
 does: its key is the passphrase's SHA-256 (as MAVProxy's `signing setup`), its own frames
 are signed, and unsigned frames from skyfuse are rejected (counted). With --intruder it
@@ -38,6 +44,10 @@ def main():
     ap.add_argument("--boot-s", type=float, default=1000.0, help="the clock's reading at start, s")
     ap.add_argument("--passphrase", default=None, help="require signing with this passphrase's key")
     ap.add_argument("--intruder", action="store_true", help="also send unsigned TIMESYNC requests")
+    ap.add_argument("--accept-setup-signing", action="store_true",
+                    help="take a SETUP_SIGNING and require its key from then on")
+    ap.add_argument("--passphrase-check", default=None,
+                    help="with --accept-setup-signing: the passphrase the key should hash from")
     a = ap.parse_args()
 
     t0 = time.monotonic()
@@ -66,6 +76,20 @@ def main():
         if m is not None:
             heard = True
             t = m.get_type()
+            if t == "SETUP_SIGNING" and a.accept_setup_signing:
+                import hashlib
+                key = bytes(m.secret_key)
+                want = hashlib.sha256(a.passphrase_check.encode("utf-8")).digest() if a.passphrase_check else None
+                # The signing clock: 10 µs units since 2015-01-01 (pymavlink's).
+                out["setup_signing"] = {
+                    "received": out.get("setup_signing", {}).get("received", 0) + 1,
+                    "target_system": m.target_system, "target_component": m.target_component,
+                    "key_matches": key == want,
+                    "initial_timestamp_vs_now_s": (m.initial_timestamp - (time.time() - 1420070400) * 1e5) / 1e5,
+                    "at_s": round(time.monotonic() - t0, 3),
+                }
+                conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=lambda mav, msg_id: False,
+                                   link_id=3, initial_timestamp=m.initial_timestamp)
             if t == "TIMESYNC":
                 if m.tc1 == 0:
                     out["requests_from_skyfuse"] += 1
@@ -99,6 +123,8 @@ def main():
     del out["age_ms"]
     sg = conn.mav.signing
     out["signing"] = {"good": sg.goodsig_count, "bad": sg.badsig_count, "unsigned_rejected": sg.reject_count}
+    if a.accept_setup_signing:
+        out["signing"]["enabled"] = bool(sg.sign_outgoing)
     print(json.dumps(out), flush=True)
 
 

@@ -208,6 +208,13 @@ pub fn signing_data(key: [u8; 32], link_id: u8, allow_unsigned: bool) -> ::mavli
     ))
 }
 
+/// The MAVLink signing clock at Unix time `unix_us`: 10 µs units since 2015-01-01
+/// 00:00 UTC (SETUP_SIGNING's `initial_timestamp`, a signature's timestamp).
+pub fn signing_timestamp(unix_us: i64) -> u64 {
+    const EPOCH_2015_US: i64 = 1_420_070_400_000_000;
+    (unix_us.saturating_sub(EPOCH_2015_US).max(0) / 10) as u64
+}
+
 /// MAVLink 2 signing (rust-mavlink's): a frame of `msg` signed with `signing` (its key,
 /// link id and timestamp).
 pub fn encode_raw_v2_signed(

@@ -1199,3 +1199,13 @@ proptest! {
         let _ = decode_json(s.as_bytes());
     }
 }
+
+#[test]
+fn the_signing_clock_counts_10_us_from_2015() {
+    // 2015-01-01 00:00:00 UTC, one second later, and before it (never negative).
+    assert_eq!(signing_timestamp(1_420_070_400_000_000), 0);
+    assert_eq!(signing_timestamp(1_420_070_401_000_000), 100_000);
+    assert_eq!(signing_timestamp(0), 0);
+    // pymavlink's MAVLink_signing: int((time.time() - 1420070400) * 100000).
+    assert_eq!(signing_timestamp(1_764_000_000_123_450), 34_392_960_012_345);
+}
