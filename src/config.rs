@@ -336,7 +336,8 @@ pub struct MavlinkConfig {
     /// own output coming back through a bridge and is skipped.
     pub component_id: u8,
     /// Where VISION_POSITION_ESTIMATE goes: `udpout:HOST:PORT`, `udpin:HOST:PORT`,
-    /// `tcpout:HOST:PORT`, `serial:PATH:BAUD`.
+    /// `tcpout:HOST:PORT`, `serial:PATH:BAUD`, each optionally with
+    /// `?messages=vpe,vse,odometry` (its own pose messages).
     pub endpoints: Vec<String>,
     /// Output rate, Hz.
     pub rate_hz: f64,
@@ -890,7 +891,7 @@ impl Config {
             .map_err(|e| format!("estimator: {e}"))?;
         self.health.validate()?;
         for e in &self.mavlink.endpoints {
-            Endpoint::parse(e).map_err(|m| format!("mavlink.endpoints: {m}"))?;
+            Endpoint::parse_with_messages(e).map_err(|m| format!("mavlink.endpoints: {m}"))?;
         }
         if !(self.mavlink.rate_hz.is_finite()
             && self.mavlink.rate_hz >= 1.0
@@ -1020,6 +1021,62 @@ fn parse_env_value(raw: &str) -> toml::Value {
     }
 }
 
+/// Which pose messages go to the autopilot (all of `[mavlink]`'s, or one endpoint's
+/// `?messages=`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MessageSet {
+    pub vision_position_estimate: bool,
+    pub vision_speed_estimate: bool,
+    pub odometry: bool,
+}
+
+impl MessageSet {
+    /// Whether a message of this id goes; messages other than the pose's always do.
+    pub fn passes(&self, msg_id: u32) -> bool {
+        match msg_id {
+            VISION_POSITION_ESTIMATE_ID => self.vision_position_estimate,
+            VISION_SPEED_ESTIMATE_ID => self.vision_speed_estimate,
+            ODOMETRY_ID => self.odometry,
+            _ => true,
+        }
+    }
+
+    pub fn union(self, other: MessageSet) -> MessageSet {
+        MessageSet {
+            vision_position_estimate: self.vision_position_estimate
+                || other.vision_position_estimate,
+            vision_speed_estimate: self.vision_speed_estimate || other.vision_speed_estimate,
+            odometry: self.odometry || other.odometry,
+        }
+    }
+
+    /// `vpe,odometry` (also the messages' full names, any case).
+    fn parse(list: &str, whole: &str) -> Result<MessageSet, String> {
+        let mut set = MessageSet {
+            vision_position_estimate: false,
+            vision_speed_estimate: false,
+            odometry: false,
+        };
+        for item in list.split(',').map(str::trim) {
+            match item.to_ascii_lowercase().as_str() {
+                "vpe" | "vision_position_estimate" => set.vision_position_estimate = true,
+                "vse" | "vision_speed_estimate" => set.vision_speed_estimate = true,
+                "odometry" => set.odometry = true,
+                other => {
+                    return Err(format!(
+                        "MAVLink endpoint {whole:?}: unknown message {other:?} in messages= (vpe, vse, odometry)"
+                    ))
+                }
+            }
+        }
+        Ok(set)
+    }
+}
+
+const VISION_POSITION_ESTIMATE_ID: u32 = 102;
+const VISION_SPEED_ESTIMATE_ID: u32 = 103;
+const ODOMETRY_ID: u32 = 331;
+
 /// Where MAVLink goes, parsed from the address strings users know from MAVProxy and
 /// mavlink-router.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -1035,6 +1092,20 @@ pub enum Endpoint {
 }
 
 impl Endpoint {
+    /// An endpoint with its own choice of pose messages:
+    /// `udpout:HOST:PORT?messages=odometry` (`vpe`, `vse`, `odometry`, comma-separated);
+    /// without `?messages=` the `[mavlink]` booleans choose.
+    pub fn parse_with_messages(s: &str) -> Result<(Endpoint, Option<MessageSet>), String> {
+        let Some((addr, query)) = s.split_once('?') else {
+            return Ok((Endpoint::parse(s)?, None));
+        };
+        let ep = Endpoint::parse(addr)?;
+        let list = query.strip_prefix("messages=").ok_or_else(|| {
+            format!("MAVLink endpoint {s:?}: after `?` only messages=LIST (vpe, vse, odometry)")
+        })?;
+        Ok((ep, Some(MessageSet::parse(list, s)?)))
+    }
+
     pub fn parse(s: &str) -> Result<Endpoint, String> {
         let (scheme, rest) = s.split_once(':').ok_or_else(|| {
             format!("MAVLink endpoint {s:?}: expected udpout:HOST:PORT, udpin:HOST:PORT, tcpout:HOST:PORT or serial:PATH:BAUD")
@@ -1085,6 +1156,33 @@ impl Endpoint {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_endpoint_chooses_its_own_messages() {
+        let (ep, set) =
+            Endpoint::parse_with_messages("udpout:127.0.0.1:14540?messages=odometry").unwrap();
+        assert_eq!(ep, Endpoint::UdpOut("127.0.0.1:14540".into()));
+        let set = set.unwrap();
+        assert!(set.odometry && !set.vision_position_estimate && !set.vision_speed_estimate);
+        assert!(set.passes(0) && set.passes(331) && !set.passes(102));
+        let (_, set) =
+            Endpoint::parse_with_messages("serial:/dev/ttyUSB0:921600?messages=VPE, vse").unwrap();
+        let set = set.unwrap();
+        assert!(set.vision_position_estimate && set.vision_speed_estimate && !set.odometry);
+        assert_eq!(
+            Endpoint::parse_with_messages("tcpout:h:5760").unwrap().1,
+            None
+        );
+        for (bad, says) in [
+            ("udpout:h:1?messages=pose", "unknown message \"pose\""),
+            ("udpout:h:1?messages=", "unknown message \"\""),
+            ("udpout:h:1?rate=10", "only messages=LIST"),
+            ("udpout:h?messages=vpe", "missing :PORT"),
+        ] {
+            let e = Endpoint::parse_with_messages(bad).expect_err(bad);
+            assert!(e.contains(says), "{bad}: {e}");
+        }
+    }
 
     #[test]
     fn endpoint_strings() {

@@ -517,3 +517,118 @@ fn without_an_endpoint_mavlink_says_it_is_not_sending() {
             .join("\n")
     );
 }
+
+/// Issue 36: each endpoint chooses its pose messages (`?messages=`): ODOMETRY to one
+/// (ArduPilot `VISO_TYPE` 1/3 and PX4 EKF2 read it), VISION_POSITION_ESTIMATE to the
+/// other, each only what it asked for. ODOMETRY as the autopilots read it: LOCAL_NED
+/// pose, BODY_FRD velocity that, rotated by its own quaternion, is the pose's motion;
+/// positive variances; quality; nothing non-finite.
+#[test]
+fn each_endpoint_gets_the_pose_messages_it_asks_for() {
+    let (odo_port, vpe_port) = (free_port(), free_port());
+    let svc = Service::start(
+        &[
+            "demo",
+            "--no-browser",
+            "--mavlink",
+            &format!("udpout:127.0.0.1:{odo_port}?messages=odometry"),
+            "--mavlink",
+            &format!("udpout:127.0.0.1:{vpe_port}"),
+        ],
+        &[],
+    );
+    // In the figure-eight (from 10 s), where the body velocity is not zero.
+    svc.wait_status(Duration::from_secs(30), |s| {
+        s["estimator"]["valid"] == true && s["service"]["uptime_s"].as_f64() > Some(12.0)
+    });
+    let odo_listener = std::process::Command::new(python())
+        .arg(repo_root().join("tests/py/mavlink_listen.py"))
+        .args(["--port", &odo_port.to_string(), "--seconds", "4"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("listener");
+    let vpe_side = json(&run_py(
+        "mavlink_listen.py",
+        &["--port", &vpe_port.to_string(), "--seconds", "4"],
+    ));
+    let out = odo_listener.wait_with_output().expect("listener output");
+    let odo_side = json(&String::from_utf8_lossy(&out.stdout));
+    let odo = odo_side["odometry"].as_array().cloned().unwrap_or_default();
+    let n_vpe = vpe_side["vpe"].as_array().map_or(0, Vec::len);
+    eprintln!(
+        "ODOMETRY endpoint: {} ODOMETRY, {} VPE; VPE endpoint: {n_vpe} VPE, {} ODOMETRY",
+        odo.len(),
+        odo_side["vpe"].as_array().map_or(0, Vec::len),
+        vpe_side["odometry"].as_array().map_or(0, Vec::len),
+    );
+    assert!(odo.len() >= 90, "{} ODOMETRY in 4 s", odo.len());
+    assert_eq!(odo_side["vpe"].as_array().map_or(0, Vec::len), 0);
+    assert!(n_vpe >= 90, "{n_vpe} VPE in 4 s");
+    assert_eq!(vpe_side["odometry"].as_array().map_or(0, Vec::len), 0);
+    for m in &odo {
+        assert_eq!(m["finite"], true, "{m}");
+        assert_eq!(m["frame_id"], 1, "MAV_FRAME_LOCAL_NED: {m}");
+        assert_eq!(m["child_frame_id"], 12, "MAV_FRAME_BODY_FRD: {m}");
+        let q = m["quality"].as_i64().unwrap_or(-1);
+        assert!((1..=100).contains(&q), "quality of a valid pose: {m}");
+        // Variances on the upper triangle's diagonal: x, y, z, roll, pitch, yaw.
+        let pc: Vec<f64> = m["pose_covariance"]
+            .as_array()
+            .map(|a| a.iter().filter_map(|v| v.as_f64()).collect())
+            .unwrap_or_default();
+        for i in [0, 6, 11, 15, 18, 20] {
+            assert!(pc.get(i).is_some_and(|&v| v > 0.0), "variance {i}: {m}");
+        }
+    }
+    // The body velocity, turned into NED by the message's own attitude, is the motion
+    // of its position: a frame or sign slip would not be.
+    let f = |m: &serde_json::Value, k: &str, i: usize| m[k][i].as_f64().unwrap_or(f64::NAN);
+    let (mut errs, mut speeds) = (Vec::new(), Vec::new());
+    for w in odo.windows(10).step_by(5) {
+        let (a, b) = (&w[0], &w[9]);
+        let dt =
+            (b["time_usec"].as_f64().unwrap_or(0.0) - a["time_usec"].as_f64().unwrap_or(0.0)) / 1e6;
+        if dt <= 0.05 {
+            continue;
+        }
+        let moved = [
+            (b["x"].as_f64().unwrap_or(0.0) - a["x"].as_f64().unwrap_or(0.0)) / dt,
+            (b["y"].as_f64().unwrap_or(0.0) - a["y"].as_f64().unwrap_or(0.0)) / dt,
+            (b["z"].as_f64().unwrap_or(0.0) - a["z"].as_f64().unwrap_or(0.0)) / dt,
+        ];
+        let m = &w[5];
+        let q = [f(m, "q", 0), f(m, "q", 1), f(m, "q", 2), f(m, "q", 3)];
+        let v = rotate(q, [f(m, "v", 0), f(m, "v", 1), f(m, "v", 2)]);
+        errs.push(((0..3).map(|i| (v[i] - moved[i]).powi(2)).sum::<f64>()).sqrt());
+        speeds.push((moved.iter().map(|x| x * x).sum::<f64>()).sqrt());
+    }
+    errs.sort_by(f64::total_cmp);
+    speeds.sort_by(f64::total_cmp);
+    let (err, speed) = (errs[errs.len() / 2], speeds[speeds.len() / 2]);
+    eprintln!("ODOMETRY body velocity vs its pose's motion: median error {err:.2} m/s at median speed {speed:.2} m/s");
+    assert!(speed > 0.5, "not moving: {speed}");
+    assert!(err < 0.3 * speed, "{err} m/s off at {speed} m/s");
+}
+
+/// `v` rotated by the unit quaternion `q` = [w, x, y, z].
+fn rotate(q: [f64; 4], v: [f64; 3]) -> [f64; 3] {
+    let [w, x, y, z] = q;
+    let r = [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ];
+    [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])
+}

@@ -238,8 +238,13 @@ impl MavlinkStats {
 /// A UDP link's socket, its destination and its name, once the link's task set it up.
 type DirectUdp = Arc<std::sync::OnceLock<(tokio::net::UdpSocket, SocketAddr, String)>>;
 
+/// An endpoint and its own choice of pose messages (`?messages=`; `None`: `[mavlink]`'s).
+pub type EndpointSpec = (Endpoint, Option<MessageSet>);
+
 /// A frame to one endpoint; never waits.
 struct Link {
+    /// The pose messages this endpoint takes.
+    messages: MessageSet,
     tx: mpsc::Sender<Arc<[u8]>>,
     stats: Arc<LinkStats>,
     /// MAVLink 2 signing with this link's id, when a key is configured.
@@ -271,7 +276,12 @@ impl Link {
     }
 }
 
-fn spawn_link(ep: Endpoint, stats: Arc<LinkStats>, incoming: Incoming) -> Link {
+fn spawn_link(
+    ep: Endpoint,
+    messages: MessageSet,
+    stats: Arc<LinkStats>,
+    incoming: Incoming,
+) -> Link {
     let (tx, rx) = mpsc::channel(LINK_QUEUE);
     let s = stats.clone();
     let direct = DirectUdp::default();
@@ -286,6 +296,7 @@ fn spawn_link(ep: Endpoint, stats: Arc<LinkStats>, incoming: Incoming) -> Link {
         }
     });
     Link {
+        messages,
         tx,
         stats,
         signing,
@@ -516,12 +527,12 @@ async fn stream_link<W, Open, Opening>(
 }
 
 /// Set up the endpoints' tasks; returns the stats the status API shows.
-pub fn build_stats(cfg: &MavlinkConfig) -> (Arc<MavlinkStats>, Vec<Endpoint>) {
+pub fn build_stats(cfg: &MavlinkConfig) -> (Arc<MavlinkStats>, Vec<EndpointSpec>) {
     let mut eps = Vec::new();
     let mut links = Vec::new();
     for s in &cfg.endpoints {
         // Validated with the config; a bad one here is skipped, not fatal.
-        match Endpoint::parse(s) {
+        match Endpoint::parse_with_messages(s) {
             Ok(ep) => {
                 eps.push(ep);
                 links.push((s.clone(), Arc::new(LinkStats::default())));
@@ -568,7 +579,10 @@ pub struct VpeSender {
     max_std_m: f64,
     stats: Arc<MavlinkStats>,
     links: Vec<Link>,
+    /// `[mavlink]`'s pose messages (endpoints without `?messages=`, the Zenoh routes).
     set: MessageSet,
+    /// Every pose message some endpoint takes: what each pose is built into.
+    built: MessageSet,
     period_us: i64,
     max_age_us: i64,
     next_due: Option<i64>,
@@ -596,7 +610,7 @@ pub fn start(
     cfg: MavlinkConfig,
     max_std_m: f64,
     stats: Arc<MavlinkStats>,
-    endpoints: Vec<Endpoint>,
+    endpoints: Vec<EndpointSpec>,
     tap: crate::tap::Tap,
     time: Arc<crate::clock::SharedTimeBase>,
 ) -> (VpeHandle, Option<mpsc::Receiver<ZenohFrame>>) {
@@ -606,11 +620,20 @@ pub fn start(
         tracing::error!("MAVLink signing off: {e}");
         None
     });
+    let global = MessageSet {
+        vision_position_estimate: cfg.vision_position_estimate,
+        vision_speed_estimate: cfg.vision_speed_estimate,
+        odometry: cfg.odometry,
+    };
+    let built = endpoints
+        .iter()
+        .filter_map(|(_, m)| *m)
+        .fold(global, MessageSet::union);
     let links: Vec<Link> = endpoints
         .into_iter()
         .zip(stats.links.iter())
         .enumerate()
-        .map(|(i, (ep, (_, s)))| {
+        .map(|(i, ((ep, messages), (_, s)))| {
             // Link ids from 1, in the order of the endpoints.
             let signing = key.map(|k| {
                 Arc::new(crate::codec::mavlink::signing_data(
@@ -627,7 +650,7 @@ pub fn start(
                 required: cfg.signing_required,
                 link: s.clone(),
             };
-            spawn_link(ep, s.clone(), incoming)
+            spawn_link(ep, messages.unwrap_or(global), s.clone(), incoming)
         })
         .collect();
     let (zenoh, zenoh_rx) = if cfg.zenoh_raw || cfg.zenoh_json {
@@ -652,11 +675,8 @@ pub fn start(
         .map(|(_, s)| s.clone())
         .collect();
     let sender = VpeSender {
-        set: MessageSet {
-            vision_position_estimate: cfg.vision_position_estimate,
-            vision_speed_estimate: cfg.vision_speed_estimate,
-            odometry: cfg.odometry,
-        },
+        set: global,
+        built,
         period_us: (1e6 / cfg.rate_hz) as i64,
         max_age_us: (cfg.max_age_ms * 1e3) as i64,
         next_due: None,
@@ -795,7 +815,7 @@ impl VpeSender {
             Some(p) if self.last_sent_pose_us == Some(p.time_us) => Ok(None),
             Some(p) if !fresh && p.valid => Ok(None),
             Some(p) => {
-                match vpe::pose_messages(p, autopilot_us(p.time_us), self.set, self.max_std_m) {
+                match vpe::pose_messages(p, autopilot_us(p.time_us), self.built, self.max_std_m) {
                     Ok(m) => Ok(Some((p.time_us, p.reset_counter, m))),
                     Err(VpeError::Invalid(why)) => Err(format!("estimate invalid: {why}")),
                     Err(e) => Err(format!("estimate rejected: {e}")),
@@ -856,7 +876,8 @@ impl VpeSender {
                 Ok(frame) => {
                     let frame: Arc<[u8]> = frame.into();
                     self.tap.mavlink_out(now, &frame);
-                    for l in &self.links {
+                    let id = mavlink::Message::message_id(&msg);
+                    for l in self.links.iter().filter(|l| l.messages.passes(id)) {
                         match &l.signing {
                             None => l.offer(&frame),
                             Some(sd) => {
@@ -868,7 +889,7 @@ impl VpeSender {
                             }
                         }
                     }
-                    if let Some(z) = &self.zenoh {
+                    if let Some(z) = self.zenoh.as_ref().filter(|_| self.set.passes(id)) {
                         if z.try_send((header, msg, frame)).is_err() {
                             for s in &self.zenoh_stats {
                                 s.dropped.fetch_add(1, Relaxed);
@@ -966,8 +987,14 @@ mod tests {
             required: false,
             link: stats.clone(),
         };
+        let all = MessageSet {
+            vision_position_estimate: true,
+            vision_speed_estimate: true,
+            odometry: true,
+        };
         let link = spawn_link(
             Endpoint::TcpOut(format!("127.0.0.1:{port}")),
+            all,
             stats.clone(),
             incoming,
         );

@@ -20,13 +20,7 @@ pub enum VpeError {
     NotFinite { field: &'static str, value: f64 },
 }
 
-/// Which messages to build.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MessageSet {
-    pub vision_position_estimate: bool,
-    pub vision_speed_estimate: bool,
-    pub odometry: bool,
-}
+pub use crate::config::MessageSet;
 
 /// ENU/FLU attitude → NED/FRD attitude (inverse of `frames::q_ned_frd_to_enu_flu`).
 pub fn q_enu_flu_to_ned_frd(q: UnitQuaternion<f64>) -> UnitQuaternion<f64> {
