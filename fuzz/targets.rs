@@ -114,6 +114,15 @@ impl Target {
                     let _ = ts.remote_ns(word(&c[16..]));
                 }
                 let _ = ts.status();
+                // The same bytes as a stream cut at every 7th byte (TCP, serial): the
+                // same TIMESYNCs, never more than one frame held back.
+                let mut stream = codec::mavlink::StreamTimesyncs::default();
+                let streamed: usize = bytes.chunks(7).map(|c| stream.push(c).len()).sum();
+                assert!(
+                    streamed <= frames.len() + 1,
+                    "{streamed} > {}",
+                    frames.len()
+                );
                 !frames.is_empty()
             }
         }

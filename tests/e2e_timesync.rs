@@ -18,22 +18,37 @@ fn fly_against_standin(
     standin_args: &[&str],
     env: &[(&str, &str)],
 ) -> (serde_json::Value, serde_json::Value, Service) {
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .map(|a| a.port())
-        .expect("udp port")
-        .to_string();
+    fly_against_standin_on("udpout", standin_args, env)
+}
+
+/// [`fly_against_standin`] over `scheme` (`udpout`, or `tcpout` to the stand-in
+/// listening on TCP as SITL's serial ports do).
+fn fly_against_standin_on(
+    scheme: &str,
+    standin_args: &[&str],
+    env: &[(&str, &str)],
+) -> (serde_json::Value, serde_json::Value, Service) {
+    let port = if scheme == "tcpout" {
+        free_port().to_string()
+    } else {
+        std::net::UdpSocket::bind("127.0.0.1:0")
+            .and_then(|s| s.local_addr())
+            .map(|a| a.port())
+            .expect("udp port")
+            .to_string()
+    };
     let svc = Service::start(
         &[
             "demo",
             "--no-browser",
             "--mavlink",
-            &format!("udpout:127.0.0.1:{port}"),
+            &format!("{scheme}:127.0.0.1:{port}"),
         ],
         env,
     );
     let args: Vec<&str> = ["--port", port.as_str()]
         .into_iter()
+        .chain((scheme == "tcpout").then_some("--tcp"))
         .chain(standin_args.iter().copied())
         .collect();
     let out = json(&run_py("timesync_standin.py", &args));
@@ -72,6 +87,24 @@ fn timesync_converges_and_poses_carry_the_autopilots_time() {
     eprintln!(
         "timesync: rtt {} ms, {} used / {} rejected; VPE age by the autopilot's clock: median {age:.1} ms (min {}, max {})",
         ts["rtt_ms"], ts["used"], ts["rejected"], out["late_age_ms"]["min"], out["late_age_ms"]["max"]
+    );
+}
+
+/// TIMESYNC on a byte stream (TCP here; serial takes the same path): frames cut across
+/// reads are put together again, the autopilot's requests answered on the link.
+#[test]
+fn timesync_converges_over_tcp() {
+    let (out, status, _svc) = fly_against_standin_on("tcpout", &["--seconds", "10"], &[]);
+    let mav = mavlink_of(&status);
+    let ts = &mav["timesync"];
+    eprintln!("timesync over tcp: {out}\n{ts}");
+    assert!(out["answers_from_skyfuse"].as_u64() > Some(10), "{out}");
+    assert!(ts["answered"].as_u64() > Some(10), "{mav}");
+    assert_eq!(ts["converged"], true, "{mav}");
+    let age = out["late_age_ms"]["median"].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        (-5.0..250.0).contains(&age),
+        "VPE usec not in the autopilot's time: {out}"
     );
 }
 

@@ -103,8 +103,13 @@ impl Incoming {
     /// Bytes read from a link at `now_us`: TIMESYNC answers update the clock estimate;
     /// the autopilot's requests get the frames to send back.
     fn read(&self, bytes: &[u8], now_us: i64) -> Vec<Vec<u8>> {
+        self.handle(crate::codec::mavlink::timesyncs(bytes), now_us)
+    }
+
+    /// TIMESYNCs read at `now_us` (from a datagram, or reassembled from a stream).
+    fn handle(&self, reads: Vec<crate::codec::mavlink::ReadTimesync>, now_us: i64) -> Vec<Vec<u8>> {
         let mut replies = Vec::new();
-        for read in crate::codec::mavlink::timesyncs(bytes) {
+        for read in reads {
             if self.required {
                 let ok = self
                     .signing
@@ -291,8 +296,8 @@ fn spawn_link(
         match ep {
             Endpoint::UdpOut(addr) => udp_out(addr, rx, s, d, incoming).await,
             Endpoint::UdpIn(addr) => udp_in(addr, rx, s, incoming).await,
-            Endpoint::TcpOut(addr) => tcp_out(addr, rx, s).await,
-            Endpoint::Serial { path, baud } => serial(path, baud, rx, s).await,
+            Endpoint::TcpOut(addr) => tcp_out(addr, rx, s, incoming).await,
+            Endpoint::Serial { path, baud } => serial(path, baud, rx, s, incoming).await,
         }
     });
     Link {
@@ -450,7 +455,12 @@ async fn udp_in(
     }
 }
 
-async fn tcp_out(addr: String, rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+async fn tcp_out(
+    addr: String,
+    rx: mpsc::Receiver<Arc<[u8]>>,
+    stats: Arc<LinkStats>,
+    incoming: Incoming,
+) {
     let open = || {
         let addr = addr.clone();
         async move {
@@ -465,10 +475,16 @@ async fn tcp_out(addr: String, rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkSta
             }
         }
     };
-    stream_link(format!("tcpout:{addr}"), open, rx, stats).await
+    stream_link(format!("tcpout:{addr}"), open, rx, stats, incoming).await
 }
 
-async fn serial(path: String, baud: u32, rx: mpsc::Receiver<Arc<[u8]>>, stats: Arc<LinkStats>) {
+async fn serial(
+    path: String,
+    baud: u32,
+    rx: mpsc::Receiver<Arc<[u8]>>,
+    stats: Arc<LinkStats>,
+    incoming: Incoming,
+) {
     let open = || {
         let path = path.clone();
         async move {
@@ -478,22 +494,25 @@ async fn serial(path: String, baud: u32, rx: mpsc::Receiver<Arc<[u8]>>, stats: A
                 .map_err(|e| format!("cannot open: {e}"))
         }
     };
-    stream_link(format!("serial:{path}:{baud}"), open, rx, stats).await
+    stream_link(format!("serial:{path}:{baud}"), open, rx, stats, incoming).await
 }
 
-/// A byte-stream link (TCP, serial): open it, write frames until a write fails, then
-/// back off and open it again. Frames queued while it was down are dropped and counted:
-/// a pose must be fresh or not at all.
-async fn stream_link<W, Open, Opening>(
+/// A byte-stream link (TCP, serial): open it, write frames until a write fails (or the
+/// other end closes), then back off and open it again. Frames queued while it was down
+/// are dropped and counted: a pose must be fresh or not at all. What the autopilot sends
+/// back is read for TIMESYNC (frames reassembled across reads), answered on the link.
+async fn stream_link<S, Open, Opening>(
     name: String,
     mut open: Open,
     mut rx: mpsc::Receiver<Arc<[u8]>>,
     stats: Arc<LinkStats>,
+    incoming: Incoming,
 ) where
-    W: tokio::io::AsyncWrite + Unpin,
+    S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin,
     Open: FnMut() -> Opening,
-    Opening: std::future::Future<Output = Result<W, String>>,
+    Opening: std::future::Future<Output = Result<S, String>>,
 {
+    use tokio::io::AsyncReadExt;
     let mut delay = BACKOFF_MIN;
     loop {
         let mut link = match open().await {
@@ -510,18 +529,42 @@ async fn stream_link<W, Open, Opening>(
         stats.connected.store(true, Relaxed);
         delay = BACKOFF_MIN;
         drain_dropped(&mut rx, &stats);
+        let mut reassembly = crate::codec::mavlink::StreamTimesyncs::default();
+        let mut buf = vec![0u8; 2048];
         loop {
-            let Some(f) = rx.recv().await else { return };
-            let written = async {
-                link.write_all(&f).await?;
-                link.flush().await
+            // One frame to write, or bytes read back (each side whole before the other).
+            let (frames, why): (Vec<Vec<u8>>, Option<String>) = tokio::select! {
+                f = rx.recv() => match f {
+                    Some(f) => (vec![f.to_vec()], None),
+                    None => return,
+                },
+                r = link.read(&mut buf) => match r {
+                    Ok(0) => (vec![], Some("closed by the other end".to_string())),
+                    Ok(n) => (incoming.handle(reassembly.push(&buf[..n]), now_us()), None),
+                    Err(e) => (vec![], Some(e.to_string())),
+                },
             };
-            if let Err(e) = written.await {
+            let mut failed = why;
+            for f in frames {
+                if failed.is_some() {
+                    break;
+                }
+                let written = async {
+                    link.write_all(&f).await?;
+                    link.flush().await
+                };
+                match written.await {
+                    Ok(()) => {
+                        stats.sent.fetch_add(1, Relaxed);
+                    }
+                    Err(e) => failed = Some(e.to_string()),
+                }
+            }
+            if let Some(e) = failed {
                 stats.error(format!("{name}: {e}"));
                 stats.connected.store(false, Relaxed);
                 break;
             }
-            stats.sent.fetch_add(1, Relaxed);
         }
     }
 }

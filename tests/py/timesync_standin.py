@@ -8,7 +8,7 @@ with its own clock at arrival, so the caller can check that `usec` is in the aut
 time.
 
     python tests/py/timesync_standin.py --port P --seconds 12 [--rate 5] [--boot-s 1000]
-        [--passphrase SECRET [--intruder]]
+        [--tcp] [--passphrase SECRET [--intruder]]
 
 With --accept-setup-signing it starts without signing and takes a SETUP_SIGNING as
 ArduPilot does: from then on its key is the one received, its frames are signed and
@@ -44,6 +44,8 @@ def main():
     ap.add_argument("--boot-s", type=float, default=1000.0, help="the clock's reading at start, s")
     ap.add_argument("--passphrase", default=None, help="require signing with this passphrase's key")
     ap.add_argument("--intruder", action="store_true", help="also send unsigned TIMESYNC requests")
+    ap.add_argument("--tcp", action="store_true",
+                    help="listen on TCP (skyfuse's tcpout:, as SITL's serial ports) instead of UDP")
     ap.add_argument("--accept-setup-signing", action="store_true",
                     help="take a SETUP_SIGNING and require its key from then on")
     ap.add_argument("--passphrase-check", default=None,
@@ -55,7 +57,8 @@ def main():
     def clock_ns():
         return int((a.boot_s + (time.monotonic() - t0) * a.rate) * 1e9)
 
-    conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{a.port}", source_system=1, source_component=1)
+    scheme = "tcpin" if a.tcp else "udpin"
+    conn = mavutil.mavlink_connection(f"{scheme}:127.0.0.1:{a.port}", source_system=1, source_component=1)
     intruder = None
     if a.passphrase:
         import hashlib

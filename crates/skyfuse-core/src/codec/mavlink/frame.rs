@@ -96,6 +96,25 @@ pub(super) fn for_each_frame<'a>(
     first_error.map_or(Ok(()), Err)
 }
 
+/// Where the complete part of a stream's bytes ends: the offset of a frame cut off by
+/// the end of `buf` (its rest is still to come, on a TCP or serial link), else
+/// `buf.len()`. Scans as [`for_each_frame`] does, so a STX inside a frame is no start.
+pub(super) fn complete_len(buf: &[u8]) -> usize {
+    let mut pos = 0;
+    while let Some(&b) = buf.get(pos) {
+        if b != STX_V1 && b != STX_V2 {
+            pos += 1;
+            continue;
+        }
+        match candidate(buf, pos) {
+            Candidate::Frame(_, len) | Candidate::Foreign(len) => pos += len,
+            Candidate::Bad(DecodeError::Truncated { .. }) => return pos,
+            Candidate::Bad(_) => pos += 1,
+        }
+    }
+    buf.len()
+}
+
 fn junk(start: usize, end: usize) -> DecodeError {
     DecodeError::Mavlink(format!(
         "{} byte(s) at offset {start} are not a MAVLink frame",

@@ -197,6 +197,28 @@ pub fn timesyncs(payload: &[u8]) -> Vec<ReadTimesync> {
     out
 }
 
+/// TIMESYNCs from a byte stream (TCP, serial), where reads cut frames anywhere: the
+/// cut-off tail of one read waits for the next. Holds at most one frame's bytes.
+#[derive(Debug, Default)]
+pub struct StreamTimesyncs {
+    pending: Vec<u8>,
+}
+
+impl StreamTimesyncs {
+    pub fn push(&mut self, bytes: &[u8]) -> Vec<ReadTimesync> {
+        self.pending.extend_from_slice(bytes);
+        let complete = frame::complete_len(&self.pending);
+        let out = timesyncs(&self.pending[..complete]);
+        self.pending.drain(..complete);
+        // A cut-off frame is shorter than the largest one; more is junk that looked
+        // like a start.
+        if self.pending.len() > ::mavlink::consts::MAX_FRAME_SIZE {
+            self.pending.clear();
+        }
+        out
+    }
+}
+
 /// Signing state for one link: its key, its link id, and whether unsigned frames read
 /// back are taken (rust-mavlink's `SigningData`; outgoing frames are signed).
 pub fn signing_data(key: [u8; 32], link_id: u8, allow_unsigned: bool) -> ::mavlink::SigningData {

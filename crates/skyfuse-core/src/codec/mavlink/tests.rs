@@ -1209,3 +1209,55 @@ fn the_signing_clock_counts_10_us_from_2015() {
     // pymavlink's MAVLink_signing: int((time.time() - 1420070400) * 100000).
     assert_eq!(signing_timestamp(1_764_000_000_123_450), 34_392_960_012_345);
 }
+
+#[test]
+fn timesyncs_from_a_stream_cut_anywhere_are_all_found() {
+    use ::mavlink::dialects::common::TIMESYNC_DATA;
+    let header = |seq| MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: seq,
+    };
+    // Three TIMESYNCs with a HEARTBEAT and junk (a stray STX among them) between.
+    let mut stream = Vec::new();
+    for i in 0..3u8 {
+        let m = MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: 0,
+            ts1: 1_000 + i64::from(i),
+            target_system: 0,
+            target_component: 0,
+        });
+        stream.extend(encode_raw_v2(header(i), &m).unwrap());
+        stream.extend([0x00, 0xFD, 0x42]);
+        stream.extend(
+            encode_raw_v2(
+                header(i),
+                &MavMessage::HEARTBEAT(::mavlink::dialects::common::HEARTBEAT_DATA::default()),
+            )
+            .unwrap(),
+        );
+    }
+    let want: Vec<i64> = vec![1_000, 1_001, 1_002];
+    // Every single cut, and reads of every size.
+    for cut in 0..=stream.len() {
+        let mut s = StreamTimesyncs::default();
+        let mut got: Vec<i64> = s.push(&stream[..cut]).iter().map(|t| t.data.ts1).collect();
+        got.extend(s.push(&stream[cut..]).iter().map(|t| t.data.ts1));
+        assert_eq!(got, want, "cut at {cut}");
+    }
+    for size in 1..40 {
+        let mut s = StreamTimesyncs::default();
+        let got: Vec<i64> = stream
+            .chunks(size)
+            .flat_map(|c| s.push(c))
+            .map(|t| t.data.ts1)
+            .collect();
+        assert_eq!(got, want, "reads of {size}");
+    }
+    // Junk that never completes a frame stays bounded.
+    let mut s = StreamTimesyncs::default();
+    for _ in 0..1_000 {
+        assert!(s.push(&[0xFD, 0x40]).is_empty());
+    }
+    assert!(s.pending.len() <= ::mavlink::consts::MAX_FRAME_SIZE);
+}
