@@ -701,6 +701,11 @@
       const links = `${z.routers ?? '?'} router${z.routers === 1 ? '' : 's'}, ${z.peers ?? '?'} peer${z.peers === 1 ? '' : 's'}`;
       rows.push(['Zenoh', `${z.mode} · ${lost ? 'no router, reconnecting' : links}`, lost ? 'full bad' : null]);
     }
+    // The estimator's clock: a simulator faster than real time runs it at its rate.
+    const clock = (st.ingest || {}).clock;
+    if (clock && clock.base === 'vehicle') {
+      rows.push(['clock', `vehicle · ${fmt(clock.rate, 2)}× real time (${clock.reference})`, 'full warn']);
+    }
     rows.push(['uptime', fmtDur(svc.uptime_s)]);
     const cells = [];
     for (const [k, v, cls] of rows) cells.push(h('dt', null, k), h('dd', cls || null, v));

@@ -414,8 +414,19 @@ impl Ingest {
         }
         let mut decoded: Vec<Decoded> = Vec::new();
         let result = codec::decode(input.config.format, ros_type, payload, &mut decoded);
+        // A message with two parts (HIGHRES_IMU: IMU and pressure) whose other part is
+        // bad is no fault of this input; its own bad part is.
+        let mut rejected = false;
         match result {
-            Err(e) => input.reject(Rejection::Decode(e), arrival_us),
+            Err(codec::DecodeError::Part { kind, .. }) if kind != input.config.kind => {}
+            Err(codec::DecodeError::Part { error, .. }) => {
+                rejected = true;
+                input.reject(Rejection::Decode(*error), arrival_us);
+            }
+            Err(e) => {
+                rejected = true;
+                input.reject(Rejection::Decode(e), arrival_us);
+            }
             // A valid message with nothing for us (a HEARTBEAT).
             Ok(()) if decoded.is_empty() => {
                 c.ignored.fetch_add(1, Relaxed);
@@ -429,7 +440,7 @@ impl Ingest {
         let any_ours = decoded.iter().any(|d| d.data.kind() == input.config.kind);
         for d in decoded {
             if d.data.kind() != input.config.kind {
-                if !any_ours {
+                if !any_ours && !rejected {
                     c.ignored.fetch_add(1, Relaxed);
                 }
                 continue;
@@ -596,6 +607,64 @@ mod tests {
                 ing.accept(input, "imu", imu_json(t).as_bytes(), t).len()
             })
             .sum()
+    }
+
+    /// HIGHRES_IMU carries an IMU and a pressure: a pressure that is no air pressure is
+    /// the barometer input's rejection alone; the IMU input takes its part, uncharged.
+    #[test]
+    fn a_bad_pressure_in_highres_imu_costs_the_barometer_input_only() {
+        use mavlink::dialects::common as mc;
+        let ing = ingest_with(
+            "[[inputs]]\nid=\"imu\"\nkind=\"imu\"\nkey=\"mavlink/1/1/HIGHRES_IMU\"\nformat=\"mavlink-json\"\nrate_hz=50\n\
+             [[inputs]]\nid=\"baro\"\nkind=\"baro\"\nkey=\"mavlink/1/1/HIGHRES_IMU\"\nformat=\"mavlink-json\"\nrate_hz=50\n",
+        );
+        let header = mavlink::MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: 0,
+        };
+        let msg = |t: u64, abs_pressure: f32| {
+            let m = mc::MavMessage::HIGHRES_IMU(mc::HIGHRES_IMU_DATA {
+                time_usec: t,
+                zacc: -9.81,
+                abs_pressure,
+                fields_updated: mc::HighresImuUpdatedFlags::all(),
+                ..Default::default()
+            });
+            codec::mavlink::encode_json(header, &m).expect("json")
+        };
+        let (imu, baro) = (ing.inputs[0].clone(), ing.inputs[1].clone());
+        let key = "mavlink/1/1/HIGHRES_IMU";
+        // PX4's Pa, then a pressure that is neither hPa nor Pa.
+        assert_eq!(
+            ing.accept(&imu, key, msg(1_000_000, 95_578.8).as_bytes(), 1_000_000)
+                .len(),
+            1
+        );
+        assert_eq!(
+            ing.accept(&baro, key, msg(1_000_000, 95_578.8).as_bytes(), 1_000_000)
+                .len(),
+            1
+        );
+        assert_eq!(
+            ing.accept(&imu, key, msg(1_020_000, 3_000.0).as_bytes(), 1_020_000)
+                .len(),
+            1
+        );
+        assert_eq!(
+            ing.accept(&baro, key, msg(1_020_000, 3_000.0).as_bytes(), 1_020_000)
+                .len(),
+            0
+        );
+        let (i, b) = (imu.status(1_100_000), baro.status(1_100_000));
+        assert_eq!((i.accepted, i.rejected, i.ignored), (2, 0, 0), "{i:?}");
+        assert_eq!((b.accepted, b.rejected, b.ignored), (1, 1, 0), "{b:?}");
+        assert!(
+            b.last_error
+                .as_deref()
+                .is_some_and(|e| e.contains("abs_pressure")),
+            "{b:?}"
+        );
     }
 
     #[test]

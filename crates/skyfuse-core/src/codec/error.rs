@@ -59,6 +59,13 @@ pub enum DecodeError {
     NoRosType,
     #[error("payload is not UTF-8 text")]
     NotUtf8,
+    /// The second part of a message that carries two samples (HIGHRES_IMU's pressure
+    /// beside its IMU) is bad: an error for the input of that kind only.
+    #[error("{kind} part: {error}")]
+    Part {
+        kind: crate::sample::SensorKind,
+        error: Box<DecodeError>,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -90,6 +97,7 @@ impl DecodeError {
             DecodeError::Mavlink(_) => "mavlink",
             DecodeError::NoRosType => "no_ros_type",
             DecodeError::NotUtf8 => "not_utf8",
+            DecodeError::Part { error, .. } => error.kind(),
         }
     }
 }

@@ -191,38 +191,48 @@ pub(super) fn decode_second(sensor: SensorMsg, f: &Fields) -> Result<Mapped, Dec
     }
 }
 
-/// HIGHRES_IMU's `abs_pressure` (hPa) and `temperature` (°C) → a barometer, when
+/// HIGHRES_IMU's `abs_pressure` and `temperature` (°C) → a barometer, when
 /// `fields_updated` says the pressure is new (PX4 sets the bit only with a new baro
 /// reading, so an IMU at 250 Hz does not repeat a 50 Hz barometer). A zero mask is a
-/// sender that ignores the field: its pressure is taken only when it is one.
+/// sender that ignores the field: its pressure is taken only when it is one. The
+/// MAVLink spec says hPa; PX4 1.14–1.16 put Pa there (`baro_pressure_pa`, measured from
+/// v1.16 SITL: 95578). Air pressure in hPa and in Pa do not overlap (70–1200 and
+/// 7000–120000), so either is read; anything else is refused.
 fn highres_imu_pressure(f: &Fields) -> Result<Mapped, DecodeError> {
     use HighresImuUpdatedFlags as U;
     let bit = u64::from(U::HIGHRES_IMU_UPDATED_ABS_PRESSURE.bits());
     let updated = f.flags("fields_updated", |n| {
         U::from_name(n).map(|b| u64::from(b.bits()))
     })?;
-    let hpa = f.f32_any("abs_pressure")?;
-    let range = crate::sample::BARO_MIN_PA / 100.0..=crate::sample::BARO_MAX_PA / 100.0;
+    let value = f.f32_any("abs_pressure")?;
+    let hpa_range = crate::sample::BARO_MIN_PA / 100.0..=crate::sample::BARO_MAX_PA / 100.0;
+    let pa_range = crate::sample::BARO_MIN_PA..=crate::sample::BARO_MAX_PA;
+    let air = hpa_range.contains(&value) || pa_range.contains(&value);
     match updated {
         Some(b) if b != 0 && b & bit == 0 => return Ok(None),
         Some(b) if b != 0 => {}
         // Mask zero or absent: no claim, so a zero or garbage pressure is no error.
-        _ if !range.contains(&hpa) => return Ok(None),
+        _ if !air => return Ok(None),
         _ => {}
     }
-    let hpa = crate::codec::error::in_range(
-        "abs_pressure",
-        hpa,
-        *range.start(),
-        *range.end(),
-        "not an air pressure in hPa",
-    )?;
+    if !air {
+        return Err(DecodeError::OutOfRange {
+            field: "abs_pressure".into(),
+            value,
+            reason: "not an air pressure in hPa (the spec) nor in Pa (PX4)",
+        });
+    }
+    let pressure_pa = if pa_range.contains(&value) {
+        value
+    } else {
+        value * 100.0
+    };
     let temperature_c = f.f32_any("temperature")?;
     let stamp = usec(f, "time_usec")?;
     Ok(Some((
         stamp,
         SensorData::Baro(crate::sample::Baro {
-            pressure_pa: hpa * 100.0,
+            pressure_pa,
             temperature_c: temperature_c.is_finite().then_some(temperature_c),
             variance: None,
         }),

@@ -167,8 +167,6 @@ pub fn decode_raw_filtered(
     })
 }
 
-/// The message's samples to `out`: its own, then a second one some messages carry
-/// (HIGHRES_IMU's pressure), so a bad second part costs only itself.
 /// A TIMESYNC read back from a link, with its whole frame (a signature check reads it).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReadTimesync {
@@ -263,6 +261,8 @@ pub fn signature_ok(frame: &[u8], signing: &::mavlink::SigningData) -> bool {
     signing.verify_signature(&MAVLinkV2MessageRaw::from_bytes_unparsed(buf))
 }
 
+/// The message's samples to `out`: its own, then a second one some messages carry
+/// (HIGHRES_IMU's pressure).
 fn map_message(
     sensor: SensorMsg,
     message: &Map<String, Value>,
@@ -281,7 +281,13 @@ fn map_message(
         }
     };
     push(map::decode(sensor, &fields)?);
-    push(map::decode_second(sensor, &fields)?);
+    // A bad second part costs only itself: its error names its kind, so ingest charges
+    // the input of that kind and keeps the first part for the other.
+    let second = map::decode_second(sensor, &fields).map_err(|e| DecodeError::Part {
+        kind: sensor.kinds().get(1).copied().unwrap_or(sensor.kind()),
+        error: Box::new(e),
+    })?;
+    push(second);
     Ok(())
 }
 

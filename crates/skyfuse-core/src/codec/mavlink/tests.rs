@@ -892,8 +892,9 @@ fn scaled_pressure_decodes_in_hectopascal_and_refuses_pascal() {
 
 /// HIGHRES_IMU carries PX4's barometer (`abs_pressure`, hPa) beside the IMU: both come
 /// out of one message, each stamped `time_usec`; a pressure the mask does not claim is
-/// not repeated as a reading, and a claimed pressure in Pa is refused while the IMU
-/// part of the message is kept.
+/// not repeated as a reading; PX4's Pa are read as Pa, and a claimed pressure that is
+/// neither hPa nor Pa is refused as the barometer part's error while the IMU part of
+/// the message is kept.
 #[test]
 fn highres_imu_gives_its_barometer_beside_the_imu() {
     // A zero mask with a zero pressure (a sender that fills neither) gives the IMU only.
@@ -929,9 +930,26 @@ fn highres_imu_gives_its_barometer_beside_the_imu() {
     r.unwrap();
     assert_eq!(out.len(), 1);
     assert!(matches!(out[0].data, SensorData::Imu(_)));
-    let (r, out) = raw(&msg(95_000.0, mc::HighresImuUpdatedFlags::all()));
+    // PX4 1.16's Pa.
+    let (r, out) = raw(&msg(95_578.8, mc::HighresImuUpdatedFlags::all()));
+    r.unwrap();
+    let SensorData::Baro(b) = &out[1].data else {
+        panic!("{out:?}")
+    };
+    assert!((b.pressure_pa - 95_578.8).abs() < 0.01);
+    let (r, out) = raw(&msg(3_000.0, mc::HighresImuUpdatedFlags::all()));
     let e = r.unwrap_err();
     assert!(e.to_string().contains("abs_pressure"), "{e}");
+    assert!(
+        matches!(
+            e,
+            DecodeError::Part {
+                kind: crate::sample::SensorKind::Baro,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
     assert_eq!(out.len(), 1, "the IMU part is kept: {out:?}");
     assert!(matches!(out[0].data, SensorData::Imu(_)));
     // mavlink-server's JSON of a real PX4 message: the same two samples.
