@@ -56,6 +56,17 @@ fn fly(scenario: &str, link: &str, instance: u32) -> Option<Value> {
 
 /// [`fly`] with another skyfuse config from `tests/data/sitl/`.
 fn fly_with(scenario: &str, link: &str, instance: u32, config: Option<&str>) -> Option<Value> {
+    fly_at(scenario, link, instance, config, 1)
+}
+
+/// [`fly_with`] with SITL running `speedup` times real time.
+fn fly_at(
+    scenario: &str,
+    link: &str,
+    instance: u32,
+    config: Option<&str>,
+    speedup: u32,
+) -> Option<Value> {
     if skip_requested("peers", &format!("SITL {scenario}/{link}")) {
         return None;
     }
@@ -70,7 +81,8 @@ fn fly_with(scenario: &str, link: &str, instance: u32, config: Option<&str>) -> 
     let run = Command::new(python())
         .arg(repo_root().join("tests/py/sitl/sitl_flight.py"))
         .args(["--skyfuse", env!("CARGO_BIN_EXE_skyfuse")])
-        .args(["--scenario", scenario, "--link", link, "--speedup", "1"])
+        .args(["--scenario", scenario, "--link", link])
+        .args(["--speedup", &speedup.to_string()])
         .arg("--fast-arm")
         .args(["--instance", &instance.to_string()])
         .args(
@@ -199,5 +211,23 @@ fn gps_and_flow_from_mavlink_servers_raw_frames() {
     // (mavlink_raw/out, raw frames) instead of its JSON.
     if let Some(r) = fly_with("gps_flow", "zenoh_raw", 17, Some("skyfuse-gps-raw.toml")) {
         flew(&r);
+    }
+}
+
+/// Issue 36: SITL at `--speedup 5` flies the same square. skyfuse finds the autopilot's
+/// clock running 5× the host's on its IMU, fuses on it and sends 30 Hz of the
+/// autopilot's time (150 a host second), stamped in it by TIMESYNC.
+#[test]
+fn at_five_times_real_time_over_udp() {
+    if let Some(r) = fly_at("gps_flow", "udpin", 18, None, 5) {
+        flew(&r);
+        let st = &r["status_last"];
+        assert_eq!(st["clock"]["base"], "vehicle", "{}", st["clock"]);
+        let rate = st["clock"]["rate"].as_f64().unwrap_or(f64::NAN);
+        assert!((rate - 5.0).abs() < 0.15, "clock rate {rate}");
+        let ts = &st["mavlink"]["timesync"];
+        assert_eq!(ts["converged"], true, "{ts}");
+        let vpe_rate = st["mavlink"]["rate_hz"].as_f64().unwrap_or(0.0);
+        assert!(vpe_rate > 100.0, "VPE {vpe_rate} a host second");
     }
 }

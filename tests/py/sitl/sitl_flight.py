@@ -444,7 +444,9 @@ def reduce_status(s):
                                            for r in x.get("reasons") or []]
     return {"estimator": {k: est.get(k) for k in ESTIMATOR_KEYS if k in est},
             "mavlink": {k: mav.get(k) for k in ("sent", "withheld", "dropped", "errors", "rate_hz",
-                                               "sending", "not_sending_reason", "last_error")},
+                                               "sending", "not_sending_reason", "last_error",
+                                               "timesync")},
+            "clock": (s.get("ingest") or {}).get("clock"),
             "sensors": sensors}
 
 
