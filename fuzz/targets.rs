@@ -79,6 +79,13 @@ impl Target {
                     Format::Ros1
                 };
                 let ty = RosType::ALL[usize::from(i) % RosType::ALL.len()];
+                if self == Target::Ros2Cdr {
+                    // The same bytes as an rmw_zenoh attachment and a key's type chunk.
+                    let _ = codec::ros::rmw_zenoh::Attachment::parse(rest);
+                    if let Ok(text) = std::str::from_utf8(rest) {
+                        let _ = codec::ros::rmw_zenoh::type_of_key(text);
+                    }
+                }
                 codec::decode(format, Some(ty), rest, &mut out).is_ok()
             }
             Target::MavlinkJson => {

@@ -550,7 +550,39 @@ pub struct InputConfig {
     /// `type = "auto"` (ros2 only): the type a bridge announces for the key is used.
     #[serde(skip)]
     pub auto_type: bool,
+    /// ros2 only: how the topic is on Zenoh. `bridge` (zenoh-bridge-ros2dds: `key` is
+    /// the topic's key) or `rmw_zenoh` (nodes on ROS 2's Zenoh middleware:
+    /// `<domain_id>/<topic>/<type>/<hash>`, with an attachment per sample).
+    #[serde(default, skip_serializing_if = "RosTransport::is_bridge")]
+    pub transport: RosTransport,
+    /// `transport = "rmw_zenoh"`: the ROS domain (`ROS_DOMAIN_ID`).
+    #[serde(default, skip_serializing_if = "is_zero_u32")]
+    pub domain_id: u32,
 }
+
+/// How a ros2 input's topic reaches Zenoh.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RosTransport {
+    /// zenoh-bridge-ros2dds (or zenoh-plugin-ros2dds in zenohd) between DDS and Zenoh.
+    #[default]
+    Bridge,
+    /// ROS 2 nodes started with `RMW_IMPLEMENTATION=rmw_zenoh_cpp`: no bridge.
+    RmwZenoh,
+}
+
+impl RosTransport {
+    pub fn is_bridge(&self) -> bool {
+        *self == RosTransport::Bridge
+    }
+}
+
+fn is_zero_u32(x: &u32) -> bool {
+    *x == 0
+}
+
+/// ROS 2 domain ids are 0–232 (DDS ports; rmw_zenoh keeps the same range).
+pub const MAX_ROS_DOMAIN_ID: u32 = 232;
 
 impl InputConfig {
     /// The key expressions to subscribe to. zenoh-plugin-ros1 publishes on
@@ -558,6 +590,15 @@ impl InputConfig {
     /// 2025; older releases have none), so a ROS 1 input subscribes to both shapes.
     pub fn key_exprs(&self) -> Vec<String> {
         match self.format {
+            Format::Ros2 if self.transport == RosTransport::RmwZenoh => {
+                vec![crate::codec::ros::rmw_zenoh::subscription_key(
+                    self.domain_id,
+                    &self.key,
+                    self.ros_type
+                        .filter(|_| !self.auto_type)
+                        .map(|t| t.ros2_name()),
+                )]
+            }
             Format::Ros1 => {
                 let topic = self.key.trim_start_matches('/');
                 vec![format!("*/*/{topic}"), format!("*/*/*/{topic}")]
@@ -861,6 +902,22 @@ impl Config {
                     ));
                 }
             }
+            if input.transport == RosTransport::RmwZenoh && input.format != Format::Ros2 {
+                return Err(format!(
+                    "{name}: `transport = \"rmw_zenoh\"` works for ros2 inputs only"
+                ));
+            }
+            if input.domain_id > MAX_ROS_DOMAIN_ID {
+                return Err(format!(
+                    "{name}: `domain_id` = {} must be in 0..={MAX_ROS_DOMAIN_ID}",
+                    input.domain_id
+                ));
+            }
+            if input.domain_id != 0 && input.transport != RosTransport::RmwZenoh {
+                return Err(format!(
+                    "{name}: `domain_id` is only meaningful with `transport = \"rmw_zenoh\"` (a bridge keeps the domain on its side)"
+                ));
+            }
             if input.auto_type && input.format != Format::Ros2 {
                 return Err(format!(
                     "{name}: `type = \"auto\"` works for ros2 inputs only (bridges announce ROS 2 types)"
@@ -1156,6 +1213,48 @@ impl Endpoint {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rmw_zenoh_inputs_subscribe_to_its_keys_and_bad_settings_are_named() {
+        let input = |extra: &str| {
+            Config::from_toml_str(
+                &format!("[[inputs]]\nid = \"imu\"\nkind = \"imu\"\nkey = \"imu/data\"\nrate_hz = 100.0\n{extra}"),
+                "t.toml",
+            )
+        };
+        let c =
+            input("format = \"ros2\"\ntype = \"auto\"\ntransport = \"rmw_zenoh\"\ndomain_id = 7\n")
+                .expect("config");
+        assert_eq!(c.inputs[0].key_exprs(), vec!["7/imu/data/*/*".to_string()]);
+        let c =
+            input("format = \"ros2\"\ntype = \"sensor_msgs/msg/Imu\"\ntransport = \"rmw_zenoh\"\n")
+                .expect("config");
+        assert_eq!(
+            c.inputs[0].key_exprs(),
+            vec!["0/imu/data/sensor_msgs::msg::dds_::Imu_/*".to_string()]
+        );
+        for (extra, says) in [
+            (
+                "format = \"json\"\ntransport = \"rmw_zenoh\"\n",
+                "ros2 inputs only",
+            ),
+            (
+                "format = \"ros2\"\ntype = \"auto\"\ntransport = \"rmw_zenoh\"\ndomain_id = 300\n",
+                "0..=232",
+            ),
+            (
+                "format = \"ros2\"\ntype = \"auto\"\ndomain_id = 3\n",
+                "only meaningful",
+            ),
+            (
+                "format = \"ros2\"\ntype = \"auto\"\ntransport = \"dds\"\n",
+                "transport",
+            ),
+        ] {
+            let e = input(extra).expect_err(extra).to_string();
+            assert!(e.contains(says), "{extra}: {e}");
+        }
+    }
 
     #[test]
     fn an_endpoint_chooses_its_own_messages() {

@@ -323,6 +323,28 @@ pub struct Ingest {
 }
 
 impl Ingest {
+    /// An rmw_zenoh sample's attachment (sequence number, source time, publisher id):
+    /// rmw_zenoh drops a sample without a readable one (its reader throws), and so does
+    /// this, counted against the input with the reason.
+    pub fn rmw_attachment_ok(
+        &self,
+        input: &InputState,
+        attachment: Option<&[u8]>,
+        arrival_us: Micros,
+    ) -> bool {
+        let error = match attachment.map(codec::ros::rmw_zenoh::Attachment::parse) {
+            Some(Ok(_)) => return true,
+            Some(Err(e)) => e,
+            None => codec::DecodeError::MissingField {
+                message: "rmw_zenoh sample".into(),
+                field: "attachment".into(),
+            },
+        };
+        input.counters.received.fetch_add(1, Relaxed);
+        input.reject(Rejection::Decode(error), arrival_us);
+        false
+    }
+
     pub fn new(config: &Config) -> Self {
         Self {
             inputs: config
@@ -380,7 +402,11 @@ impl Ingest {
         }
         let mut ros_type = input.config.ros_type;
         if input.config.format == Format::Ros2 {
-            let announced = self.announced_type(&input.config.key);
+            // rmw_zenoh says the type in every sample's key; a bridge announces it once.
+            let announced = match input.config.transport {
+                crate::config::RosTransport::RmwZenoh => codec::ros::rmw_zenoh::type_of_key(key),
+                crate::config::RosTransport::Bridge => self.announced_type(&input.config.key),
+            };
             if let Some(why) = type_mismatch(&input.config, announced.as_deref()) {
                 // Decoding another type's bytes would give garbage, not an error.
                 input.reject(Rejection::WrongType(why), arrival_us);

@@ -180,6 +180,12 @@ pub async fn subscribe_inputs(
                     let payload = sample.payload().to_bytes();
                     let key = sample.key_expr().as_str();
                     tap.input(arrival, idx, key, &payload);
+                    if input.config.transport == crate::config::RosTransport::RmwZenoh {
+                        let attachment = sample.attachment().map(|a| a.to_bytes());
+                        if !ingest.rmw_attachment_ok(input, attachment.as_deref(), arrival) {
+                            return;
+                        }
+                    }
                     for s in ingest.accept(input, key, &payload, arrival) {
                         tap.decoded(idx, &s);
                         if !sink.take(s) {

@@ -89,6 +89,8 @@ fn input_for_topic(
         rate_hz: (channel.messages as f64 / span_s.max(1e-3)).max(0.1),
         enabled: true,
         auto_type: false,
+        transport: Default::default(),
+        domain_id: 0,
     })
 }
 

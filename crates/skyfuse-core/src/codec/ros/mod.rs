@@ -12,6 +12,7 @@
 
 mod convert;
 pub mod msgs;
+pub mod rmw_zenoh;
 pub mod wire;
 
 #[cfg(test)]
