@@ -472,6 +472,13 @@ pub struct OutputConfig {
     /// ROS 2 distribution of the bridges: `humble`, or a later one (`iron`, `jazzy`,
     /// ...) whose tokens carry the REP 2011 type hash.
     pub ros_distro: String,
+    /// Also publish the ROS 2 outputs as rmw_zenoh does (nodes with
+    /// `RMW_IMPLEMENTATION=rmw_zenoh_cpp` read them with no bridge): on
+    /// `<domain>/<topic>/<type>/<hash>` with the attachment, and skyfuse as node
+    /// `/skyfuse` with a liveliness token per publisher.
+    pub rmw_zenoh: bool,
+    /// The ROS domain of the rmw_zenoh outputs (`ROS_DOMAIN_ID`).
+    pub rmw_zenoh_domain_id: u32,
 }
 
 pub const DEFAULT_OUTPUT_PREFIX: &str = "skyfuse/{vehicle}";
@@ -496,6 +503,8 @@ impl Default for OutputConfig {
             ros2_announce: true,
             ros2_qos: DEFAULT_QOS.into(),
             ros_distro: "humble".into(),
+            rmw_zenoh: false,
+            rmw_zenoh_domain_id: 0,
         }
     }
 }

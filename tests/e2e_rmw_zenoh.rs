@@ -4,12 +4,17 @@
 //! store) and publishes sensor_msgs/Imu, NavSatFix and nav_msgs/Odometry. skyfuse, with
 //! `transport = "rmw_zenoh"` and `type = "auto"`, reads each type from the keys, fuses
 //! all three, and refuses (counting, saying why) the samples rmw_zenoh itself would
-//! drop: no attachment, or a cut one.
+//! drop: no attachment, or a cut one. The other way, with `[output] rmw_zenoh`, the node
+//! receives skyfuse's pose on rmw_zenoh's key with a well-formed attachment, and its
+//! graph query finds the node /skyfuse and its publishers with their types.
 
 mod common;
 use common::*;
 
 const CONFIG: &str = r#"
+[output]
+rmw_zenoh = true
+
 [[inputs]]
 id = "imu"
 kind = "imu"
@@ -85,4 +90,32 @@ fn an_rmw_zenoh_node_is_fused_with_its_types_from_the_keys() {
     for id in ["imu", "gps", "t265"] {
         assert!(used.contains(&id), "{id} not fused: {used:?}");
     }
+    // skyfuse's pose, as an rmw_zenoh subscriber gets it.
+    let pose = &out["skyfuse_pose"];
+    let n = pose["samples"].as_u64().unwrap_or(0);
+    assert!(n > 20, "{pose}");
+    assert_eq!(pose["attachment_ok"], n, "{pose}");
+    assert_eq!(pose["decoded"], n, "{pose}");
+    assert!(pose["consecutive"].as_u64() >= Some(n - 1), "{pose}");
+    // The graph: our node, its pose publisher typed, the debug series typed.
+    let graph = out["graph"].as_array().cloned().unwrap_or_default();
+    let has = |f: &dyn Fn(&serde_json::Value) -> bool| graph.iter().any(f);
+    assert!(
+        has(&|t| t["kind"] == "NN" && t["node"] == "skyfuse"),
+        "{graph:?}"
+    );
+    assert!(
+        has(&|t| t["kind"] == "MP"
+            && t["topic"] == "/data_fusion/pose_msg"
+            && t["type"] == "geometry_msgs::msg::dds_::PoseStamped_"
+            && t["hash"]
+                .as_str()
+                .is_some_and(|h| h.starts_with("RIHS01_10f3786d"))),
+        "{graph:?}"
+    );
+    let debug = graph
+        .iter()
+        .filter(|t| t["kind"] == "MP" && t["type"] == "geometry_msgs::msg::dds_::PointStamped_")
+        .count();
+    assert!(debug >= 5, "{debug} debug publishers: {graph:?}");
 }

@@ -167,6 +167,87 @@ impl<'a> PoseMessage<'a> {
     }
 }
 
+/// The ROS 2 outputs as rmw_zenoh publishes them: skyfuse as node `/skyfuse` with one
+/// publisher per output (liveliness tokens alive while the output runs), each sample on
+/// its rmw_zenoh key with the attachment (sequence from 1, source time, the
+/// publisher's GID).
+struct RmwOutputs {
+    _tokens: Vec<zenoh::liveliness::LivelinessToken>,
+    /// By the output's bridge key: (rmw_zenoh key, GID, next sequence number).
+    topics: BTreeMap<String, (String, [u8; 16], i64)>,
+}
+
+/// The node's name on the rmw_zenoh graph.
+const RMW_NODE: &str = "skyfuse";
+
+impl RmwOutputs {
+    async fn declare(session: &zenoh::Session, cfg: &OutputConfig) -> RmwOutputs {
+        use crate::codec::ros::rmw_zenoh as rz;
+        use sha2::{Digest, Sha256};
+        let zid = session.zid().to_string();
+        let domain = cfg.rmw_zenoh_domain_id;
+        let mut keys = vec![rz::node_token(domain, &zid, 0, "/", RMW_NODE)];
+        let mut topics = BTreeMap::new();
+        for (i, (key, ty)) in cfg.ros2_outputs().into_iter().enumerate() {
+            let Some(hash) = crate::ros_graph::rihs01(ty) else {
+                tracing::warn!(%key, "rmw_zenoh: no type hash for {ty}: not published");
+                continue;
+            };
+            let (Some(data), Some(token)) = (
+                rz::data_key(domain, &key, ty, &hash),
+                rz::publisher_token(
+                    domain,
+                    &zid,
+                    0,
+                    i as u32 + 1,
+                    "/",
+                    RMW_NODE,
+                    &key,
+                    ty,
+                    &hash,
+                    rz::QOS_RELIABLE_DEPTH_10,
+                ),
+            ) else {
+                continue;
+            };
+            // rmw_zenoh hashes the token with XXH3-128; any 16 bytes of our own do.
+            let digest = Sha256::digest(token.as_bytes());
+            let mut gid = [0u8; 16];
+            gid.copy_from_slice(&digest[..16]);
+            topics.insert(key, (data, gid, 1));
+            keys.push(token);
+        }
+        let mut tokens = Vec::new();
+        for k in keys {
+            match session.liveliness().declare_token(&k).await {
+                Ok(t) => tokens.push(t),
+                Err(e) => tracing::warn!(token = %k, "rmw_zenoh: cannot declare token: {e}"),
+            }
+        }
+        tracing::info!(
+            domain,
+            publishers = topics.len(),
+            "rmw_zenoh: node /{RMW_NODE} on the graph"
+        );
+        RmwOutputs {
+            _tokens: tokens,
+            topics,
+        }
+    }
+
+    /// The rmw_zenoh key and attachment for the next sample of the output on `key`.
+    fn next(&mut self, key: &str) -> Option<(String, Vec<u8>)> {
+        let (data, gid, seq) = self.topics.get_mut(key)?;
+        let attachment = crate::codec::ros::rmw_zenoh::Attachment {
+            sequence_number: *seq,
+            source_timestamp_ns: crate::clock::now_us().saturating_mul(1000),
+            source_gid: *gid,
+        };
+        *seq += 1;
+        Some((data.clone(), attachment.to_bytes()))
+    }
+}
+
 /// Everything the Zenoh output publishes from.
 pub struct ZenohOutInputs {
     /// Poses at the output rate (the estimator limits it).
@@ -207,6 +288,28 @@ pub async fn run(
             }
         }
     };
+    let mut rmw = if cfg.ros2 && cfg.rmw_zenoh {
+        Some(RmwOutputs::declare(&session, &cfg).await)
+    } else {
+        None
+    };
+    let put_rmw = |next: Option<(String, Vec<u8>)>, payload: Vec<u8>| {
+        let session = session.clone();
+        let stats = stats.clone();
+        async move {
+            let Some((key, attachment)) = next else {
+                return;
+            };
+            if let Err(e) = session
+                .put(&key, payload)
+                .attachment(attachment)
+                .congestion_control(zenoh::qos::CongestionControl::Drop)
+                .await
+            {
+                stats.error(format!("{key}: {e}"));
+            }
+        }
+    };
     // The debug series change with every sample: watched only when they are published.
     let debug_on = cfg.ros2 && cfg.ros2_debug;
     tracing::info!(prefix = %prefix, json = cfg.json, ros2 = cfg.ros2, pose_key = %cfg.ros2_pose_key, "Zenoh output running");
@@ -225,6 +328,9 @@ pub async fn run(
                         Ok(m) => {
                             let cdr = m.to_cdr();
                             inp.tap.ros2_out(p.time_us, &cfg.ros2_pose_key, RosType::PoseStamped, &cdr);
+                            if let Some(r) = rmw.as_mut() {
+                                put_rmw(r.next(&cfg.ros2_pose_key), cdr.clone()).await;
+                            }
                             ok &= put(cfg.ros2_pose_key.clone(), cdr).await;
                         }
                         Err(e) => stats.error(format!("{}: {e}", cfg.ros2_pose_key)),
@@ -253,6 +359,9 @@ pub async fn run(
                     let key = format!("{}/{topic}", cfg.ros2_debug_prefix);
                     let cdr = msg.to_cdr();
                     inp.tap.ros2_out(pt.time_us, &key, RosType::PointStamped, &cdr);
+                    if let Some(r) = rmw.as_mut() {
+                        put_rmw(r.next(&key), cdr.clone()).await;
+                    }
                     if put(key, cdr).await {
                         stats.debug_points.fetch_add(1, Relaxed);
                     }

@@ -12,7 +12,14 @@ sensor_msgs/NavSatFix on /gps/fix (5 Hz), nav_msgs/Odometry on /camera/odom/samp
 and the liveliness tokens of the node and its publishers. Also 5 IMU samples with no
 attachment (rmw_zenoh's subscribers drop those) and 5 with a cut one.
 
-Prints one JSON object: per topic the samples sent with a good attachment, and the bad.
+It also subscribes, as an rmw_zenoh node would, to skyfuse's pose
+(`/data_fusion/pose_msg`, geometry_msgs/PoseStamped with the Jazzy+ type hash), checks
+each sample's attachment and CDR, and at the end asks the graph (`@ros2_lv/<domain>/**`,
+as `ros2 topic list -t` does on rmw_zenoh) what nodes and publishers there are.
+
+Prints one JSON object: per topic the samples sent with a good attachment, and the bad;
+`skyfuse_pose` (samples, attachments well formed, sequence numbers consecutive, CDR
+decoded by rosbags) and `graph` (every token's node/kind/topic/type).
 """
 import argparse
 import hashlib
@@ -123,6 +130,29 @@ def main():
                 covariance=cov))
 
     out = {name: {"good": 0, "bad": 0} for name in TOPICS}
+    pose = {"samples": 0, "attachment_ok": 0, "consecutive": 0, "decoded": 0, "frame_ids": []}
+    last_seq = [None]
+    pose_hash = "RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8"
+
+    def on_pose(sample):
+        pose["samples"] += 1
+        att = sample.attachment.to_bytes() if sample.attachment is not None else b""
+        if len(att) == 33 and att[16] == 16:
+            seq, t_ns = struct.unpack("<qq", att[:16])
+            if abs(t_ns - time.time_ns()) < 5e9:
+                pose["attachment_ok"] += 1
+            if last_seq[0] is not None and seq == last_seq[0] + 1:
+                pose["consecutive"] += 1
+            last_seq[0] = seq
+        try:
+            m = ts.deserialize_cdr(sample.payload.to_bytes(), "geometry_msgs/msg/PoseStamped")
+            pose["decoded"] += 1
+            if m.header.frame_id not in pose["frame_ids"]:
+                pose["frame_ids"].append(m.header.frame_id)
+        except Exception as e:  # noqa: BLE001 - report, do not stop
+            pose.setdefault("errors", []).append(str(e)[:100])
+    sub = s.declare_subscriber(
+        f"{a.domain}/data_fusion/pose_msg/geometry_msgs::msg::dds_::PoseStamped_/{pose_hash}", on_pose)
     start = time.time()
     due = {name: start for name in TOPICS}
     bad_left = 10
@@ -144,9 +174,24 @@ def main():
             seqs[name] += 1
             out[name]["good"] += 1
         time.sleep(0.002)
+    graph = []
+    for reply in s.liveliness().get(f"@ros2_lv/{a.domain}/**", timeout=3.0):
+        try:
+            parts = str(reply.ok.key_expr).split("/")
+        except Exception:  # noqa: BLE001 - an error reply
+            continue
+        if parts[2] == zid:
+            continue
+        entry = {"kind": parts[5], "namespace": parts[7], "node": parts[8]}
+        if len(parts) >= 13:
+            entry.update(topic=parts[9].replace("%", "/"), type=parts[10], hash=parts[11], qos=parts[12])
+        graph.append(entry)
+    sub.undeclare()
     for t in tokens:
         t.undeclare()
     s.close()
+    out["skyfuse_pose"] = pose
+    out["graph"] = graph
     print(json.dumps(out))
 
 

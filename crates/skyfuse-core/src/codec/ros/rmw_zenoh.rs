@@ -50,6 +50,58 @@ pub fn subscription_key(domain: u32, topic: &str, ros2_type: Option<&str>) -> St
     format!("{domain}/{topic}/{ty}/*")
 }
 
+/// The key an rmw_zenoh publisher of `topic` puts its samples on.
+pub fn data_key(domain: u32, topic: &str, ros2_type: &str, type_hash: &str) -> Option<String> {
+    Some(format!(
+        "{domain}/{}/{}/{type_hash}",
+        topic.trim_matches('/'),
+        dds_type_name(ros2_type)?
+    ))
+}
+
+/// The QoS field of a token for rclcpp's default profile (reliable, volatile, keep
+/// last 10): rmw_zenoh leaves each field equal to its own default empty, and its
+/// default depth is 42.
+pub const QOS_RELIABLE_DEPTH_10: &str = "::,10:,:,:,,";
+
+/// rmw_zenoh's names in tokens: every `/` becomes `%`.
+fn mangle(name: &str) -> String {
+    name.replace('/', "%")
+}
+
+/// The liveliness token of node `namespace`/`name` (enclave `/`), id `node_id`, of the
+/// Zenoh session `zid`.
+pub fn node_token(domain: u32, zid: &str, node_id: u32, namespace: &str, name: &str) -> String {
+    format!(
+        "@ros2_lv/{domain}/{zid}/{node_id}/{node_id}/NN/%/{}/{}",
+        mangle(namespace),
+        mangle(name)
+    )
+}
+
+/// The liveliness token of a publisher (`MP`) of that node.
+#[allow(clippy::too_many_arguments)]
+pub fn publisher_token(
+    domain: u32,
+    zid: &str,
+    node_id: u32,
+    entity_id: u32,
+    namespace: &str,
+    node: &str,
+    topic: &str,
+    ros2_type: &str,
+    type_hash: &str,
+    qos: &str,
+) -> Option<String> {
+    Some(format!(
+        "@ros2_lv/{domain}/{zid}/{node_id}/{entity_id}/MP/%/{}/{}/{}/{}/{type_hash}/{qos}",
+        mangle(namespace),
+        mangle(node),
+        mangle(&format!("/{}", topic.trim_matches('/'))),
+        dds_type_name(ros2_type)?
+    ))
+}
+
 /// The ROS 2 type a data key carries (`0/imu/data/sensor_msgs::msg::dds_::Imu_/RIHS01_…`
 /// → `sensor_msgs/msg/Imu`).
 pub fn type_of_key(key: &str) -> Option<String> {
@@ -215,6 +267,40 @@ mod tests {
             assert_eq!(ros2_type_name(bad), None, "{bad}");
         }
         assert_eq!(dds_type_name("sensor_msgs/Imu"), None);
+    }
+
+    /// Tokens as docs/design.md and liveliness_utils.cpp make them (the examples of the
+    /// design document's graph section, with our node).
+    #[test]
+    fn tokens_as_rmw_zenoh_writes_them() {
+        let hash = "RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8";
+        assert_eq!(
+            node_token(0, "aac3178e146ba6f1fc6e6a4085e77f21", 0, "/", "skyfuse"),
+            "@ros2_lv/0/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/skyfuse"
+        );
+        assert_eq!(
+            publisher_token(
+                0,
+                "Z",
+                0,
+                1,
+                "/",
+                "skyfuse",
+                "skyfuse/pose",
+                "geometry_msgs/msg/PoseStamped",
+                hash,
+                QOS_RELIABLE_DEPTH_10
+            )
+            .as_deref(),
+            Some(
+                "@ros2_lv/0/Z/0/1/MP/%/%/skyfuse/%skyfuse%pose/geometry_msgs::msg::dds_::PoseStamped_/RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8/::,10:,:,:,,"
+            )
+        );
+        assert_eq!(
+            data_key(2, "/data_fusion/pose_msg", "geometry_msgs/msg/PoseStamped", hash)
+                .as_deref(),
+            Some("2/data_fusion/pose_msg/geometry_msgs::msg::dds_::PoseStamped_/RIHS01_10f3786d7d40fd2b54367835614bff85d4ad3b5dab62bf8bca0cc232d73b4cd8")
+        );
     }
 
     /// The 33 bytes rmw_zenoh ≥ 0.2.4 writes (zenoh-ext: i64 LE, i64 LE, LEB128 16, 16
