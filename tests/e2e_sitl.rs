@@ -231,3 +231,48 @@ fn at_five_times_real_time_over_udp() {
         assert!(vpe_rate > 100.0, "VPE {vpe_rate} a host second");
     }
 }
+
+/// Issue 36: MAVLink 2 signing with a real autopilot. skyfuse gives ArduCopter SITL its
+/// key on request (SETUP_SIGNING); from then on SITL answers skyfuse's signed frames
+/// and a pymavlink sender signing with the key, and ignores an unsigned one (which it
+/// answered before). The work is in `tests/py/sitl/signing_check.py`.
+#[test]
+fn sitl_requires_the_key_skyfuse_gave_it() {
+    if skip_requested("peers", "SITL signing") {
+        return;
+    }
+    if let Some(why) = missing() {
+        skipped("SITL signing", &why);
+        return;
+    }
+    let out =
+        std::env::temp_dir().join(format!("skyfuse-sitl-signing-{}.json", std::process::id()));
+    let run = Command::new(python())
+        .arg(repo_root().join("tests/py/sitl/signing_check.py"))
+        .args([
+            "--skyfuse",
+            env!("CARGO_BIN_EXE_skyfuse"),
+            "--instance",
+            "19",
+        ])
+        .arg("--out")
+        .arg(&out)
+        .env("SKYFUSE_PEERS", peers_dir())
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", python().display()));
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap_or_default())
+        .unwrap_or(Value::Null);
+    let _ = std::fs::remove_file(&out);
+    eprintln!(
+        "SITL signing: unsigned answered before {} / after {}; signed pymavlink after {}; skyfuse's requests answered {}",
+        r["unsigned_before"]["answered"], r["unsigned_after"]["answered"], r["signed_after"]["answered"],
+        r["timesync_after"]["used"]
+    );
+    assert!(
+        run.status.success() && r["pass"] == true,
+        "{}: {}\n{}",
+        run.status,
+        r["fails"],
+        String::from_utf8_lossy(&run.stderr)
+    );
+}
