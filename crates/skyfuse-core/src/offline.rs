@@ -1135,6 +1135,7 @@ mod reference_tests {
             hdop: Some(0.8),
             vdop: None,
             velocity: None,
+            velocity_up_known: false,
         });
         let samples: Vec<Sample> = (0..20)
             .flat_map(|i| {

@@ -307,6 +307,9 @@ pub struct GnssFix {
     pub vdop: Option<f64>,
     /// Ground velocity in ENU, m/s, where the message has it.
     pub velocity: Option<Vector3<f64>>,
+    /// `velocity`'s up component was measured. GPS_RAW_INT carries ground speed and
+    /// course only: its up is no measurement (a climb is not a level flight).
+    pub velocity_up_known: bool,
 }
 
 /// Optical flow, optionally with the module's own ToF height.

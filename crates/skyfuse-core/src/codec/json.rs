@@ -205,6 +205,7 @@ pub fn decode(payload: &[u8]) -> Result<Decoded, DecodeError> {
                     hdop: hdop.map(|h| finite("gnss.hdop", h)).transpose()?,
                     vdop: None,
                     velocity: None,
+                    velocity_up_known: false,
                 }),
             )
         }

@@ -174,6 +174,7 @@ mod tests {
             hdop: None,
             vdop: None,
             velocity: None,
+            velocity_up_known: false,
         })
     }
 

@@ -189,7 +189,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     }
     if let Some(v) = vel {
         let r = Matrix3::identity() * (vel_noise * vel_noise);
-        core.fuse_world_velocity(t, source, v, &r, ctx);
+        // Only what was measured: GPS_RAW_INT's velocity has no up component.
+        let rows = if fix.velocity_up_known { 3 } else { 2 };
+        core.fuse_world_velocity(t, source, v, &r, rows, ctx);
     }
 }
 
@@ -221,6 +223,7 @@ mod tests {
             hdop: Some(0.8),
             vdop: None,
             velocity: None,
+            velocity_up_known: false,
         }
     }
 

@@ -358,19 +358,21 @@ impl Core {
         st.set_innovation(&out);
     }
 
+    /// Fuse the first `rows` components (east, north[, up]) of a world velocity.
     pub fn fuse_world_velocity(
         &mut self,
         t: i64,
         source: &str,
         v: Vector3<f64>,
         r: &Matrix3<f64>,
+        rows: usize,
         ctx: &Ctx,
     ) {
         if !self.mode_ekf_direct {
             return;
         }
         let Some(ekf) = self.ekf.as_ref() else { return };
-        let m = Measurement::of_states(IDX_V, 3, &(v - ekf.vel()), r);
+        let m = Measurement::of_states(IDX_V, rows, &(v - ekf.vel()), r);
         self.update(t, source, "gnss", &m, ctx);
     }
 

@@ -614,6 +614,7 @@ fn gnss_sets_the_origin_and_no_fix_is_skipped() {
         hdop: Some(9.0),
         vdop: None,
         velocity: None,
+        velocity_up_known: false,
     };
     let gps = |f: &GnssFix, t: i64| Sample {
         source: Arc::from("gps"),
@@ -1046,6 +1047,7 @@ fn a_re_run_fuses_at_least_as_far_as_before() {
             hdop: Some(0.8),
             vdop: None,
             velocity: None,
+            velocity_up_known: false,
         }),
     });
     assert!(est.horizon_us() >= 90_000, "{}", est.horizon_us());

@@ -36,6 +36,7 @@ fn fix(east_m: f64, fix: GnssFixType) -> Sample {
             hdop: Some(0.8),
             vdop: None,
             velocity: None,
+            velocity_up_known: false,
         }),
     }
 }

@@ -582,6 +582,7 @@ fn gps(r: &Record<'_>) -> Result<Option<Mapped>, String> {
             hdop: r.get("HDop"),
             vdop: None,
             velocity,
+            velocity_up_known: true,
         }),
     )))
 }

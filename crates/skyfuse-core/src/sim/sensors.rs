@@ -444,6 +444,7 @@ impl SensorModels {
                 hdop: Some(99.0),
                 vdop: Some(99.0),
                 velocity: None,
+                velocity_up_known: false,
             };
         }
         let noise = Vector3::new(
@@ -463,6 +464,7 @@ impl SensorModels {
             hdop: Some(0.8),
             vdop: Some(1.2),
             velocity: Some(s.velocity + n3(&mut self.rng, 0.05)),
+            velocity_up_known: true,
         }
     }
 }

@@ -652,6 +652,7 @@ fn gps_raw_int(f: &Fields) -> Result<Mapped, DecodeError> {
             hdop,
             vdop,
             velocity,
+            velocity_up_known: false,
         }),
     )))
 }

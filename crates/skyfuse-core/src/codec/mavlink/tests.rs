@@ -188,6 +188,9 @@ fn golden_gps_raw_int() {
     let v = g.velocity.unwrap();
     assert_close(v.x, 1.5, "east");
     assert!(v.y.abs() < 1e-12 && v.z == 0.0, "{v}");
+    // Ground speed and course only: the up component is no measurement (fusing it as
+    // 0 held PX4 SIH's climbs back until the GPS was gated out).
+    assert!(!g.velocity_up_known);
 }
 
 #[test]

@@ -142,6 +142,7 @@ pub fn navsatfix(m: &msgs::NavSatFix, ros1: bool) -> Result<Decoded, DecodeError
             hdop: None,
             vdop: None,
             velocity: None,
+            velocity_up_known: false,
         }),
     ))
 }

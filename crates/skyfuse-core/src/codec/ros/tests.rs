@@ -241,6 +241,7 @@ fn expected(ty: RosType, v: &Value) -> Option<Decoded> {
             hdop: None,
             vdop: None,
             velocity: None,
+            velocity_up_known: false,
         }),
         RosType::Imu => SensorData::Imu(SImu {
             gyro: Some(v3(&v["angular_velocity"])),
@@ -717,6 +718,7 @@ fn sample_roundtrip_every_decodable_type_both_formats() {
                 hdop: None,
                 vdop: None,
                 velocity: None,
+                velocity_up_known: false,
             }),
         );
     }

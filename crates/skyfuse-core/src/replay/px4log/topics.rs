@@ -448,6 +448,7 @@ fn gps(c: &GpsCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
             hdop: dop(c.hdop)?,
             vdop: dop(c.vdop)?,
             velocity,
+            velocity_up_known: true,
         }),
     ))
 }
