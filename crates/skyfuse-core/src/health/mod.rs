@@ -402,9 +402,6 @@ impl HealthMonitor {
         }
     }
 
-    /// Innovation tests a window must hold before "most over the gate" fails a source.
-    pub const MIN_TESTS_JUDGED: u64 = 3;
-
     /// What the estimator says about its sources and itself.
     pub fn on_estimator(&mut self, st: &EstimatorStatus, t: i64) {
         let cfg = self.cfg.clone();
@@ -430,22 +427,14 @@ impl HealthMonitor {
             // source that mostly agrees (two flow sensors at take-off, while the
             // estimate settles) is the filter's to gate sample by sample. Taken out,
             // it could leave nothing to aid the estimate.
-            // A window holds at least MIN_TESTS_JUDGED samples: at 8 Hz a look sees
-            // one GPS fix, and one fix over the gate (a hard manoeuvre) is the filter's
-            // to reject, not a reason to take the only position source away for seconds.
-            let (n0, o0) = match h.tests_seen {
-                // Counters that went back belong to an estimator started again.
-                Some((n, o)) if src.tested >= n && src.tested_over_gate >= o => (n, o),
-                _ => (0, 0),
+            let (tested, over) = match h.tests_seen.replace((src.tested, src.tested_over_gate)) {
+                Some((n, o)) => (
+                    src.tested.saturating_sub(n),
+                    src.tested_over_gate.saturating_sub(o),
+                ),
+                None => (src.tested, src.tested_over_gate),
             };
-            let (tested, over) = (src.tested - n0, src.tested_over_gate - o0);
-            let judged = tested >= Self::MIN_TESTS_JUDGED;
-            h.tests_seen = Some(if judged {
-                (src.tested, src.tested_over_gate)
-            } else {
-                (n0, o0)
-            });
-            if src.test_ratio > cfg.test_ratio_fail && judged && 2 * over > tested {
+            if src.test_ratio > cfg.test_ratio_fail && 2 * over > tested {
                 h.raise(
                     Observation {
                         code: "innovation_rejected",
