@@ -1099,10 +1099,14 @@ pub struct MessageSet {
 impl MessageSet {
     /// Whether a message of this id goes; messages other than the pose's always do.
     pub fn passes(&self, msg_id: u32) -> bool {
+        use mavlink::dialects::common::{
+            ODOMETRY_DATA, VISION_POSITION_ESTIMATE_DATA, VISION_SPEED_ESTIMATE_DATA,
+        };
+        use mavlink::MessageData;
         match msg_id {
-            VISION_POSITION_ESTIMATE_ID => self.vision_position_estimate,
-            VISION_SPEED_ESTIMATE_ID => self.vision_speed_estimate,
-            ODOMETRY_ID => self.odometry,
+            VISION_POSITION_ESTIMATE_DATA::ID => self.vision_position_estimate,
+            VISION_SPEED_ESTIMATE_DATA::ID => self.vision_speed_estimate,
+            ODOMETRY_DATA::ID => self.odometry,
             _ => true,
         }
     }
@@ -1138,10 +1142,6 @@ impl MessageSet {
         Ok(set)
     }
 }
-
-const VISION_POSITION_ESTIMATE_ID: u32 = 102;
-const VISION_SPEED_ESTIMATE_ID: u32 = 103;
-const ODOMETRY_ID: u32 = 331;
 
 /// Where MAVLink goes, parsed from the address strings users know from MAVProxy and
 /// mavlink-router.

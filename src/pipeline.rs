@@ -184,6 +184,11 @@ pub struct PipelineConfig {
 }
 
 impl PipelineConfig {
+    /// A new estimator under health supervision for these inputs.
+    fn fusion(&self) -> Fusion {
+        Fusion::new(self.estimator.clone(), self.health.clone(), &self.inputs)
+    }
+
     /// The input whose stamps are the vehicle's clock: the first enabled IMU (it drives
     /// the filter's prediction, and an autopilot stamps it with its own clock).
     pub fn clock_reference(&self) -> Option<&str> {
@@ -280,11 +285,7 @@ impl Pipeline {
             .then(|| config.clock_reference().map(str::to_string))
             .flatten();
         Self {
-            fusion: Fusion::new(
-                config.estimator.clone(),
-                config.health.clone(),
-                &config.inputs,
-            ),
+            fusion: config.fusion(),
             config,
             base: TimeBase::HOST,
             clock_reference,
@@ -345,12 +346,19 @@ impl Pipeline {
         // The debug series change with nearly every sample: shared at their own rate,
         // so nobody is woken (and nothing copied) per sample.
         if out.debug_rate.due(t) {
-            let mut debug = est.debug().clone();
-            for pt in debug.series.values_mut() {
-                pt.time_us = base.to_host(pt.time_us);
-            }
-            if **out.debug.borrow() != debug {
-                out.debug.send_replace(Arc::new(debug));
+            if base.is_host() {
+                // Compared before copied: most ticks change nothing.
+                if **out.debug.borrow() != *est.debug() {
+                    out.debug.send_replace(Arc::new(est.debug().clone()));
+                }
+            } else {
+                let mut debug = est.debug().clone();
+                for pt in debug.series.values_mut() {
+                    pt.time_us = base.to_host(pt.time_us);
+                }
+                if **out.debug.borrow() != debug {
+                    out.debug.send_replace(Arc::new(debug));
+                }
             }
         }
         if let Some(tick) = self.ticks.build(est, t, self.shared.started_us) {
@@ -382,11 +390,7 @@ impl Pipeline {
                 self.shared
                     .time
                     .set(b, (!b.is_host()).then_some(reference.clone()));
-                self.fusion = Fusion::new(
-                    self.config.estimator.clone(),
-                    self.config.health.clone(),
-                    &self.config.inputs,
-                );
+                self.fusion = self.config.fusion();
                 self.last_pose_us = None;
                 self.ticks = TickBuilder::default();
                 let event = EstimatorEvent::new(

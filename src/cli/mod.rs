@@ -275,7 +275,7 @@ pub struct NetArgs {
     pub http: Option<String>,
 }
 
-/// `LAT,LON[,ALT]` in degrees and metres.
+/// `--speedup`: a simulator's rate against real time.
 fn parse_speedup(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(x) if (0.1..=20.0).contains(&x) => Ok(x),
@@ -284,6 +284,7 @@ fn parse_speedup(s: &str) -> Result<f64, String> {
     }
 }
 
+/// `LAT,LON[,ALT]` in degrees and metres.
 fn parse_home(s: &str) -> Result<(f64, f64, f64), String> {
     let v: Vec<f64> = s
         .split(',')

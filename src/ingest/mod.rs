@@ -477,19 +477,19 @@ impl Ingest {
             }
             {
                 let mut h = input.history();
-                let limit = self.max_rate_factor * input.config.rate_hz * self.clock.rate()
-                    + FLOOD_SLACK_HZ;
+                let clock_rate = self.clock.rate();
+                let limit =
+                    self.max_rate_factor * input.config.rate_hz * clock_rate + FLOOD_SLACK_HZ;
                 if self.max_rate_factor > 0.0
                     && input.config.rate_hz > 0.0
                     && !h.admit(arrival_us, limit)
                 {
                     drop(h);
                     c.shed.fetch_add(1, Relaxed);
-                    let rate = self.clock.rate();
-                    let clock = if rate == 1.0 {
+                    let clock = if clock_rate == 1.0 {
                         String::new()
                     } else {
-                        format!(" on a vehicle clock at {rate:.2}×")
+                        format!(" on a vehicle clock at {clock_rate:.2}×")
                     };
                     let text = format!(
                         "arriving above {limit:.0} Hz ({}× its rate_hz {}{clock} + {FLOOD_SLACK_HZ} Hz): the excess is shed",

@@ -272,12 +272,14 @@ pub async fn run(
     let mut sent_debug: BTreeMap<DebugTopic, i64> = BTreeMap::new();
     let mut health = tokio::time::interval(HEALTH_INTERVAL);
     health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let put = |key: String, payload: Vec<u8>| {
+    // `attachment`: rmw_zenoh's, on its keys.
+    let put = |key: String, payload: Vec<u8>, attachment: Option<Vec<u8>>| {
         let session = session.clone();
         let stats = stats.clone();
         async move {
             if let Err(e) = session
                 .put(&key, payload)
+                .attachment(attachment)
                 .congestion_control(zenoh::qos::CongestionControl::Drop)
                 .await
             {
@@ -293,23 +295,6 @@ pub async fn run(
     } else {
         None
     };
-    let put_rmw = |next: Option<(String, Vec<u8>)>, payload: Vec<u8>| {
-        let session = session.clone();
-        let stats = stats.clone();
-        async move {
-            let Some((key, attachment)) = next else {
-                return;
-            };
-            if let Err(e) = session
-                .put(&key, payload)
-                .attachment(attachment)
-                .congestion_control(zenoh::qos::CongestionControl::Drop)
-                .await
-            {
-                stats.error(format!("{key}: {e}"));
-            }
-        }
-    };
     // The debug series change with every sample: watched only when they are published.
     let debug_on = cfg.ros2 && cfg.ros2_debug;
     tracing::info!(prefix = %prefix, json = cfg.json, ros2 = cfg.ros2, pose_key = %cfg.ros2_pose_key, "Zenoh output running");
@@ -320,7 +305,7 @@ pub async fn run(
                 let Some(p) = inp.pose.borrow_and_update().clone() else { continue };
                 let mut ok = true;
                 if cfg.json {
-                    ok &= put(format!("{prefix}/pose"), PoseMessage::of(&p, &cfg.ros2_frame_id).to_bytes()).await;
+                    ok &= put(format!("{prefix}/pose"), PoseMessage::of(&p, &cfg.ros2_frame_id).to_bytes(), None).await;
                 }
                 // ROS consumers get only valid poses: rviz and planners cannot read a flag.
                 if cfg.ros2 && p.valid {
@@ -328,10 +313,10 @@ pub async fn run(
                         Ok(m) => {
                             let cdr = m.to_cdr();
                             inp.tap.ros2_out(p.time_us, &cfg.ros2_pose_key, RosType::PoseStamped, &cdr);
-                            if let Some(r) = rmw.as_mut() {
-                                put_rmw(r.next(&cfg.ros2_pose_key), cdr.clone()).await;
+                            if let Some((k, a)) = rmw.as_mut().and_then(|r| r.next(&cfg.ros2_pose_key)) {
+                                put(k, cdr.clone(), Some(a)).await;
                             }
-                            ok &= put(cfg.ros2_pose_key.clone(), cdr).await;
+                            ok &= put(cfg.ros2_pose_key.clone(), cdr, None).await;
                         }
                         Err(e) => stats.error(format!("{}: {e}", cfg.ros2_pose_key)),
                     }
@@ -359,17 +344,17 @@ pub async fn run(
                     let key = format!("{}/{topic}", cfg.ros2_debug_prefix);
                     let cdr = msg.to_cdr();
                     inp.tap.ros2_out(pt.time_us, &key, RosType::PointStamped, &cdr);
-                    if let Some(r) = rmw.as_mut() {
-                        put_rmw(r.next(&key), cdr.clone()).await;
+                    if let Some((k, a)) = rmw.as_mut().and_then(|r| r.next(&key)) {
+                        put(k, cdr.clone(), Some(a)).await;
                     }
-                    if put(key, cdr).await {
+                    if put(key, cdr, None).await {
                         stats.debug_points.fetch_add(1, Relaxed);
                     }
                 }
             }
             ev = inp.events.recv() => match ev {
                 Ok(e) => {
-                    if cfg.json && put(format!("{prefix}/events"), e.to_string().into_bytes()).await {
+                    if cfg.json && put(format!("{prefix}/events"), e.to_string().into_bytes(), None).await {
                         stats.events.fetch_add(1, Relaxed);
                     }
                 }
@@ -377,7 +362,7 @@ pub async fn run(
                 Err(broadcast::error::RecvError::Closed) => break,
             },
             _ = health.tick() => {
-                if cfg.json && put(format!("{prefix}/health"), (inp.health)().to_string().into_bytes()).await {
+                if cfg.json && put(format!("{prefix}/health"), (inp.health)().to_string().into_bytes(), None).await {
                     stats.health.fetch_add(1, Relaxed);
                 }
             }

@@ -186,12 +186,7 @@ impl<'a> Reader<'a> {
     fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], DecodeError> {
         let end = self.pos.checked_add(n).filter(|&e| e <= self.bytes.len());
         let Some(end) = end else {
-            return Err(DecodeError::Truncated {
-                needed: n,
-                offset: self.pos,
-                len: self.bytes.len(),
-            })
-            .map_err(|_| DecodeError::BadLength {
+            return Err(DecodeError::BadLength {
                 field: format!("rmw_zenoh attachment {what} (cut short)"),
                 len: self.bytes.len(),
             });
