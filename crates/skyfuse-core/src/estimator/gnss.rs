@@ -128,7 +128,8 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         }
     };
     core.wrls.add_absolute(source, enu, cov.diagonal());
-    core.monitors.gps_fix(t, enu, vel, cfg);
+    core.monitors
+        .gps_fix(t, enu, vel, fix.velocity_up_known, cfg);
     if !core.initialised() {
         if core.att.known() {
             let v_var = vel.map(|_| Vector3::repeat(vel_noise * vel_noise));

@@ -66,11 +66,15 @@ impl Monitors {
         }
     }
 
+    /// A fix at `z` with its velocity, whose up component is a measurement only when
+    /// `up_known` (GPS_RAW_INT has none: the position's change steers it, as with no
+    /// velocity at all).
     pub fn gps_fix(
         &mut self,
         t: i64,
         z: Vector3<f64>,
         vel: Option<Vector3<f64>>,
+        up_known: bool,
         cfg: &EstimatorConfig,
     ) {
         match self.gps.as_mut() {
@@ -78,9 +82,16 @@ impl Monitors {
                 let dt = ((t - cf.t) as f64 * 1e-6).max(0.0);
                 let e = z - cf.p;
                 cf.p += e * (cfg.monitor_gps_k_pos * dt).min(1.0);
+                let from_position = e * (cfg.monitor_gps_k_vel * dt).min(1.0);
                 match vel {
-                    Some(v) => cf.v += (v - cf.v) * (cfg.monitor_gps_k_vel * 3.0 * dt).min(1.0),
-                    None => cf.v += e * (cfg.monitor_gps_k_vel * dt).min(1.0),
+                    Some(v) => {
+                        let mut dv = (v - cf.v) * (cfg.monitor_gps_k_vel * 3.0 * dt).min(1.0);
+                        if !up_known {
+                            dv.z = from_position.z;
+                        }
+                        cf.v += dv;
+                    }
+                    None => cf.v += from_position,
                 }
                 cf.t = t;
             }
@@ -206,7 +217,7 @@ mod tests {
         let mut m = Monitors::default();
         for i in 0..40 {
             let t = i * 100_000;
-            m.gps_fix(t, Vector3::new(1.0, 2.0, 3.0), None, &cfg);
+            m.gps_fix(t, Vector3::new(1.0, 2.0, 3.0), None, true, &cfg);
             let r = m.check(t, Vector3::new(11.0, 2.0, 3.0), Vector3::zeros(), 0.5, &cfg);
             if t < 2_000_000 {
                 assert!(r.is_none(), "too early at {t}");
@@ -220,6 +231,27 @@ mod tests {
         panic!("no reset");
     }
 
+    /// GPS_RAW_INT's velocity has no up component: in a 2 m/s climb the monitor's
+    /// vertical speed follows the positions, not the 0 in the message's place.
+    #[test]
+    fn an_unmeasured_up_velocity_is_not_taken_for_zero() {
+        let cfg = EstimatorConfig::default();
+        let climb = |up_known: bool| {
+            let mut m = Monitors::default();
+            for i in 0..100_i64 {
+                let t = i * 100_000;
+                // A steady climb: the IMU measures no acceleration.
+                m.predict(Vector3::zeros(), 0.1, true);
+                let z = Vector3::new(0.0, 0.0, 2.0 * t as f64 * 1e-6);
+                m.gps_fix(t, z, Some(Vector3::zeros()), up_known, &cfg);
+            }
+            m.gps.map(|cf| cf.v.z).unwrap_or(f64::NAN)
+        };
+        let (unknown, as_zero) = (climb(false), climb(true));
+        assert!((unknown - 2.0).abs() < 0.5, "{unknown}");
+        assert!(as_zero < unknown - 0.5, "{as_zero} vs {unknown}");
+    }
+
     /// A departure within three times the filter's own 1σ is no divergence; the flow
     /// monitor is no reference without an IMU driving it.
     #[test]
@@ -228,7 +260,7 @@ mod tests {
         let mut m = Monitors::default();
         for i in 0..40 {
             let t = i * 100_000;
-            m.gps_fix(t, Vector3::new(1.0, 2.0, 3.0), None, &cfg);
+            m.gps_fix(t, Vector3::new(1.0, 2.0, 3.0), None, true, &cfg);
             // 10 m off, but the filter says 1σ 4 m.
             let r = m.check(t, Vector3::new(11.0, 2.0, 3.0), Vector3::zeros(), 4.0, &cfg);
             assert!(r.is_none(), "reset at {t} within 3σ");
