@@ -560,8 +560,10 @@ pub struct InputConfig {
     #[serde(skip)]
     pub auto_type: bool,
     /// ros2 only: how the topic is on Zenoh. `bridge` (zenoh-bridge-ros2dds: `key` is
-    /// the topic's key) or `rmw_zenoh` (nodes on ROS 2's Zenoh middleware:
-    /// `<domain_id>/<topic>/<type>/<hash>`, with an attachment per sample).
+    /// the topic's key), `rmw_zenoh` (nodes on ROS 2's Zenoh middleware, and PX4 ≥
+    /// 1.17's zenoh module: `<domain_id>/<topic>/<type>/<hash>`, with an attachment per
+    /// sample) or `px4_zenoh` (PX4 1.16's zenoh module: px4_msgs on the key its
+    /// `zenoh config addpublisher` was given, XCDR2-aligned).
     #[serde(default, skip_serializing_if = "RosTransport::is_bridge")]
     pub transport: RosTransport,
     /// `transport = "rmw_zenoh"`: the ROS domain (`ROS_DOMAIN_ID`).
@@ -578,11 +580,21 @@ pub enum RosTransport {
     Bridge,
     /// ROS 2 nodes started with `RMW_IMPLEMENTATION=rmw_zenoh_cpp`: no bridge.
     RmwZenoh,
+    /// PX4 1.16's zenoh module: `key` verbatim, no attachment, no token, XCDR2.
+    Px4Zenoh,
 }
 
 impl RosTransport {
     pub fn is_bridge(&self) -> bool {
         *self == RosTransport::Bridge
+    }
+
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            RosTransport::Bridge => "bridge",
+            RosTransport::RmwZenoh => "rmw_zenoh",
+            RosTransport::Px4Zenoh => "px4_zenoh",
+        }
     }
 }
 
@@ -911,9 +923,22 @@ impl Config {
                     ));
                 }
             }
-            if input.transport == RosTransport::RmwZenoh && input.format != Format::Ros2 {
+            if input.transport != RosTransport::Bridge && input.format != Format::Ros2 {
                 return Err(format!(
-                    "{name}: `transport = \"rmw_zenoh\"` works for ros2 inputs only"
+                    "{name}: `transport = \"{}\"` works for ros2 inputs only",
+                    input.transport.as_str()
+                ));
+            }
+            if input.transport == RosTransport::Px4Zenoh
+                && (input.auto_type || input.ros_type.and_then(|t| t.px4()).is_none())
+            {
+                return Err(format!(
+                    "{name}: `transport = \"px4_zenoh\"` needs a px4_msgs `type` (PX4 1.16's zenoh module announces none), such as \"px4_msgs/msg/SensorCombined\""
+                ));
+            }
+            if input.format == Format::Ros1 && input.ros_type.and_then(|t| t.px4()).is_some() {
+                return Err(format!(
+                    "{name}: px4_msgs are ROS 2 only: use format = \"ros2\""
                 ));
             }
             if input.domain_id > MAX_ROS_DOMAIN_ID {

@@ -406,6 +406,7 @@ impl Ingest {
             let announced = match input.config.transport {
                 crate::config::RosTransport::RmwZenoh => codec::ros::rmw_zenoh::type_of_key(key),
                 crate::config::RosTransport::Bridge => self.announced_type(&input.config.key),
+                crate::config::RosTransport::Px4Zenoh => None,
             };
             if let Some(why) = type_mismatch(&input.config, announced.as_deref()) {
                 // Decoding another type's bytes would give garbage, not an error.
@@ -436,6 +437,15 @@ impl Ingest {
                     return Vec::new();
                 }
                 _ => {}
+            }
+            if let Some(RosType::Px4(m)) = ros_type {
+                match px4_layout(&input.config, m, key) {
+                    Ok(m) => ros_type = Some(RosType::Px4(m)),
+                    Err(e) => {
+                        input.reject(Rejection::Decode(e), arrival_us);
+                        return Vec::new();
+                    }
+                }
             }
         }
         let mut decoded: Vec<Decoded> = Vec::new();
@@ -554,13 +564,35 @@ impl Ingest {
     }
 }
 
+/// How a px4_msgs input's bytes are laid out: PX4 1.16's zenoh module (XCDR2, 1.16
+/// fields), or the release an rmw_zenoh key's type hash names (else found from the
+/// payload by the decoder).
+fn px4_layout(
+    input: &InputConfig,
+    m: codec::ros::px4::Px4Msg,
+    key: &str,
+) -> Result<codec::ros::px4::Px4Msg, codec::DecodeError> {
+    use crate::config::RosTransport;
+    Ok(match input.transport {
+        RosTransport::Px4Zenoh => codec::ros::px4::Px4Msg::px4_zenoh(m.ty),
+        RosTransport::RmwZenoh => codec::ros::px4::Px4Msg {
+            version: codec::ros::px4::version_of_hash(m.ty, key.rsplit('/').next().unwrap_or(""))?,
+            ..m
+        },
+        RosTransport::Bridge => m,
+    })
+}
+
 /// Why a ros2 input with a configured type cannot take what its key carries: a bridge
 /// announces another type for it.
 pub fn type_mismatch(input: &InputConfig, announced: Option<&str>) -> Option<String> {
     let (Some(t), Some(a)) = (input.ros_type, announced) else {
         return None;
     };
-    if input.auto_type || input.format != Format::Ros2 || RosType::from_name(a) == Some(t) {
+    if input.auto_type
+        || input.format != Format::Ros2
+        || RosType::from_name(a).is_some_and(|a| a.same_type(t))
+    {
         return None;
     }
     Some(format!(

@@ -90,6 +90,8 @@ geometry_msgs/Vector3 angular
 /// A type's own fields and the messages it uses, in order.
 fn parts(t: RosType) -> (&'static str, &'static [&'static str]) {
     match t {
+        // Written from the field tables (`definition`).
+        RosType::Px4(_) => ("", &[]),
         RosType::NavSatFix => (
             r#"uint8 COVARIANCE_TYPE_UNKNOWN=0
 uint8 COVARIANCE_TYPE_APPROXIMATED=1
@@ -220,6 +222,9 @@ pub fn schema(t: RosType) -> foxglove::Schema {
 
 /// The full definition of `t`, dependencies included.
 pub fn definition(t: RosType) -> String {
+    if let RosType::Px4(m) = t {
+        return crate::codec::ros::px4::definition(m.ty, m.version.unwrap_or(Px4Version::V1_16));
+    }
     let (own, used) = parts(t);
     let mut text = own.to_string();
     for name in used {
@@ -236,6 +241,8 @@ pub fn definition(t: RosType) -> String {
     }
     text
 }
+
+use crate::codec::ros::px4::Px4Version;
 
 #[cfg(test)]
 mod tests {

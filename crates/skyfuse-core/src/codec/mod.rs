@@ -73,6 +73,11 @@ pub fn decode(
     match format {
         Format::Ros2 | Format::Ros1 => {
             let ty = ros_type.ok_or(DecodeError::NoRosType)?;
+            if let (Format::Ros2, RosType::Px4(m)) = (format, ty) {
+                // TimesyncStatus: valid, no sample.
+                out.extend(ros::px4::decode(m, payload)?);
+                return Ok(());
+            }
             let d = if format == Format::Ros2 {
                 ros::decode_cdr(ty, payload)?
             } else {

@@ -12,9 +12,12 @@
 
 mod convert;
 pub mod msgs;
+pub mod px4;
 pub mod rmw_zenoh;
 pub mod wire;
 
+#[cfg(test)]
+mod px4_tests;
 #[cfg(test)]
 mod tests;
 
@@ -29,7 +32,8 @@ pub use msgs::{
 use crate::codec::error::{DecodeError, EncodeError};
 use crate::sample::{Decoded, Micros, SensorData};
 
-/// The ROS message types skyfuse reads (all but PointStamped) and writes.
+/// The ROS message types skyfuse reads (all but PointStamped) and writes; `Px4`:
+/// PX4's own px4_msgs (ROS 2 only).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum RosType {
     NavSatFix,
@@ -41,6 +45,7 @@ pub enum RosType {
     FlowTof,
     FluidPressure,
     PointStamped,
+    Px4(px4::Px4Msg),
 }
 
 impl RosType {
@@ -69,14 +74,50 @@ impl RosType {
             | RosType::PointStamped => K::Odometry,
             RosType::FlowTof => K::Flow,
             RosType::FluidPressure => K::Baro,
+            // TimesyncStatus is never an input's type (see `from_name`).
+            RosType::Px4(m) => m.ty.kind().unwrap_or(K::VehicleState),
+        }
+    }
+
+    /// Whether it is one of PX4's px4_msgs.
+    pub fn px4(self) -> Option<px4::Px4Msg> {
+        match self {
+            RosType::Px4(m) => Some(m),
+            _ => None,
         }
     }
 
     /// From a ROS 2 (`sensor_msgs/msg/Imu`) or ROS 1 (`sensor_msgs/Imu`) type name.
+    /// px4_msgs' TimesyncStatus is a clock, not an input's type.
     pub fn from_name(s: &str) -> Option<RosType> {
         RosType::ALL
             .into_iter()
             .find(|t| t.ros2_name() == s || t.ros1_name() == s)
+            .or_else(|| {
+                px4::Px4Type::from_name(s)
+                    .filter(|t| t.kind().is_some())
+                    .map(|t| RosType::Px4(px4::Px4Msg::new(t)))
+            })
+    }
+
+    /// Every type name an input may give.
+    pub fn input_names() -> Vec<&'static str> {
+        RosType::ALL
+            .iter()
+            .filter(|t| **t != RosType::PointStamped)
+            .map(|t| t.ros2_name())
+            .chain(
+                px4::Px4Type::ALL
+                    .iter()
+                    .filter(|t| t.kind().is_some())
+                    .map(|t| t.ros2_name()),
+            )
+            .collect()
+    }
+
+    /// The same type (a px4_msgs layout or alignment aside).
+    pub fn same_type(self, other: RosType) -> bool {
+        self.ros2_name() == other.ros2_name()
     }
 
     pub fn ros2_name(self) -> &'static str {
@@ -90,9 +131,12 @@ impl RosType {
             RosType::FlowTof => "skyfuse_msgs/msg/FlowTof",
             RosType::FluidPressure => "sensor_msgs/msg/FluidPressure",
             RosType::PointStamped => "geometry_msgs/msg/PointStamped",
+            RosType::Px4(m) => m.ty.ros2_name(),
         }
     }
 
+    /// (px4_msgs has no ROS 1 form: its ROS 2 name, which no ROS 1 key carries; config
+    /// refuses it for ros1 inputs.)
     pub fn ros1_name(self) -> &'static str {
         match self {
             RosType::NavSatFix => "sensor_msgs/NavSatFix",
@@ -104,6 +148,7 @@ impl RosType {
             RosType::FlowTof => "skyfuse_msgs/FlowTof",
             RosType::FluidPressure => "sensor_msgs/FluidPressure",
             RosType::PointStamped => "geometry_msgs/PointStamped",
+            RosType::Px4(m) => m.ty.ros2_name(),
         }
     }
 
@@ -122,6 +167,7 @@ impl RosType {
             RosType::FlowTof => "ecea7b08f378954af00280e435488252",
             RosType::FluidPressure => "804dc5cea1c5306d6a2eb80b9833befe",
             RosType::PointStamped => "c63aecb41bfdfd6b7e1fac37c7cbe7bf",
+            RosType::Px4(_) => "",
         }
     }
 }
@@ -144,10 +190,9 @@ impl<'de> serde::Deserialize<'de> for RosType {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         let s = String::deserialize(d)?;
         RosType::from_name(&s).ok_or_else(|| {
-            let known: Vec<&str> = RosType::ALL.iter().map(|t| t.ros2_name()).collect();
             serde::de::Error::custom(format!(
                 "unknown ROS message type `{s}` (supported: {})",
-                known.join(", ")
+                RosType::input_names().join(", ")
             ))
         })
     }
@@ -176,6 +221,13 @@ fn decode_with(ty: RosType, payload: &[u8], ros1: bool) -> Result<Decoded, Decod
             "{} (skyfuse only publishes it)",
             ty.ros2_name()
         ))),
+        RosType::Px4(_) if ros1 => Err(DecodeError::UnsupportedMessage(format!(
+            "{} has no ROS 1 form",
+            ty.ros2_name()
+        ))),
+        RosType::Px4(m) => px4::decode(m, payload)?.ok_or_else(|| {
+            DecodeError::UnsupportedMessage(format!("{} is no sensor sample", ty.ros2_name()))
+        }),
     }
 }
 
@@ -212,8 +264,8 @@ pub fn cdr_types(payload: &[u8]) -> Vec<RosType> {
                 RosType::PoseWithCovarianceStamped => whole::<PoseWithCovarianceStamped>(payload),
                 RosType::FlowTof => whole::<FlowTof>(payload),
                 RosType::FluidPressure => whole::<FluidPressure>(payload),
-                // Only published by skyfuse.
-                RosType::PointStamped => false,
+                // Only published by skyfuse; px4_msgs are told by their keys, not sniffed.
+                RosType::PointStamped | RosType::Px4(_) => false,
             };
             fits && decode_cdr(t, payload).is_ok()
         })

@@ -42,7 +42,7 @@ macro_rules! prim {
         }
     )*};
 }
-prim!(u8, i8, u16, u32, i32, f32, f64);
+prim!(u8, i8, u16, u32, i32, u64, i64, f32, f64);
 
 /// One direction of one wire format. Implemented by [`Reader`] (fills the fields it is
 /// given) and [`Writer`] (serialises them). Field names are only needed where a read can
@@ -96,9 +96,18 @@ pub struct Reader<'a> {
     /// Padding must be zero bytes (what writers put there): only when sniffing an
     /// unknown payload, where it tells layouts apart that otherwise both fit.
     zero_padding: bool,
+    /// Largest alignment: 8 in XCDR1 (what rmw and DDS send), 4 in XCDR2 (PX4 1.16's
+    /// zenoh module).
+    max_align: usize,
 }
 
 impl<'a> Reader<'a> {
+    /// The same reader, aligning 8-byte values to 4 as XCDR2 does.
+    pub fn xcdr2(mut self) -> Self {
+        self.max_align = 4;
+        self
+    }
+
     /// The same reader, refusing non-zero padding.
     pub fn zero_padding(mut self) -> Self {
         self.zero_padding = true;
@@ -128,6 +137,7 @@ impl<'a> Reader<'a> {
             big_endian,
             ros1: false,
             zero_padding: false,
+            max_align: 8,
         })
     }
 
@@ -139,10 +149,12 @@ impl<'a> Reader<'a> {
             big_endian: false,
             ros1: true,
             zero_padding: false,
+            max_align: 8,
         }
     }
 
-    fn remaining(&self) -> usize {
+    /// Bytes not read yet.
+    pub fn remaining(&self) -> usize {
         self.buf.len().saturating_sub(self.pos)
     }
 
@@ -169,6 +181,7 @@ impl<'a> Reader<'a> {
         if self.ros1 || size <= 1 {
             return 0;
         }
+        let size = size.min(self.max_align);
         let rel = self.pos.saturating_sub(self.origin);
         (size - rel % size) % size
     }

@@ -439,6 +439,8 @@ enum Kind {
     LandDetected,
     Armed,
     AirData,
+    /// vehicle_status's arming state (not read from logs, which have actuator_armed).
+    ArmingState,
 }
 
 /// Topic name, source name, kind; the order is the preference when two topics would
@@ -1065,6 +1067,8 @@ enum Fields<'a> {
     /// Row `row` of a ULog topic's columns, read in place: a column not kept (empty)
     /// reads as NaN.
     Num { columns: &'a [Vec<f64>], row: usize },
+    /// One message's values, in header order (px4_msgs arriving one at a time).
+    One(&'a [f64]),
 }
 
 impl<'a> Fields<'a> {
@@ -1072,15 +1076,19 @@ impl<'a> Fields<'a> {
         match self {
             Fields::Text { ends, .. } => ends.len(),
             Fields::Num { columns, .. } => columns.len(),
+            Fields::One(values) => values.len(),
         }
     }
 
     /// Field `c` of a ULog row (None past its last column).
     fn num(&self, c: usize) -> Option<f64> {
-        let Fields::Num { columns, row } = *self else {
-            return None;
-        };
-        Some(columns.get(c)?.get(row).copied().unwrap_or(f64::NAN))
+        match *self {
+            Fields::Num { columns, row } => {
+                Some(columns.get(c)?.get(row).copied().unwrap_or(f64::NAN))
+            }
+            Fields::One(values) => values.get(c).copied(),
+            Fields::Text { .. } => None,
+        }
     }
 
     /// Field `c` of a CSV line, trimmed.
@@ -1128,7 +1136,9 @@ impl Row<'_> {
     fn text(&self, c: usize) -> String {
         match self.fields {
             Fields::Text { .. } => self.fields.text(c).unwrap_or("").to_string(),
-            Fields::Num { .. } => self.fields.num(c).map_or(String::new(), |v| v.to_string()),
+            Fields::Num { .. } | Fields::One(_) => {
+                self.fields.num(c).map_or(String::new(), |v| v.to_string())
+            }
         }
     }
 
@@ -1166,7 +1176,9 @@ impl Row<'_> {
                 .unwrap_or("")
                 .parse()
                 .map_err(|_| self.bad(c, "a number")),
-            Fields::Num { .. } => self.fields.num(c).ok_or_else(|| self.bad(c, "a number")),
+            Fields::Num { .. } | Fields::One(_) => {
+                self.fields.num(c).ok_or_else(|| self.bad(c, "a number"))
+            }
         }
     }
 
@@ -1188,7 +1200,7 @@ impl Row<'_> {
     ) -> Result<i64, Px4LogError> {
         let v = match self.fields {
             Fields::Text { .. } => self.fields.text(c).and_then(|s| s.parse::<i64>().ok()),
-            Fields::Num { .. } => self
+            Fields::Num { .. } | Fields::One(_) => self
                 .fields
                 .num(c)
                 .filter(|v| v.fract() == 0.0 && v.abs() < 9.0e18)
@@ -1295,8 +1307,10 @@ impl<'a> Cols<'a> {
     }
 }
 
+mod message;
 mod stream;
 mod topics;
+pub use message::MessageMapper;
 pub use stream::{read_ulog_for_replay, UlogRead, UlogSamples};
 use topics::Mapper;
 

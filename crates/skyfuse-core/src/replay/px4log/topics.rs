@@ -17,15 +17,16 @@ pub(super) enum Mapper {
     Ekf2FlowGyro(Vec3Pair),
     LandDetected(FlagCol),
     Armed(FlagCol),
+    ArmingState(FlagCol),
     AirData(AirDataCols),
 }
 
 /// vehicle_air_data: the autopilot's barometer (PX4 1.12-1.15 name its temperature
-/// `baro_temp_celcius`).
+/// `baro_temp_celcius`, 1.16 `ambient_temperature`).
 pub(super) struct AirDataCols {
     t: usize,
     pressure: usize,
-    temperature: usize,
+    temperature: Option<usize>,
 }
 
 /// A timestamp and up to two vectors (sensor_combined: gyro, accel).
@@ -174,7 +175,7 @@ impl Mapper {
             Mapper::Flow(c) => c.t,
             Mapper::Vio(c) => c.t,
             Mapper::Ekf2(c) => c.t,
-            Mapper::LandDetected(c) | Mapper::Armed(c) => c.t,
+            Mapper::LandDetected(c) | Mapper::Armed(c) | Mapper::ArmingState(c) => c.t,
             Mapper::AirData(c) => c.t,
         }
     }
@@ -249,7 +250,9 @@ impl Mapper {
             Kind::AirData => Mapper::AirData(AirDataCols {
                 t,
                 pressure: h.get("baro_pressure_pa")?,
-                temperature: h.get("baro_temp_celcius")?,
+                temperature: h
+                    .opt("baro_temp_celcius")
+                    .or_else(|| h.opt("ambient_temperature")),
             }),
             Kind::Range => Mapper::Range(RangeCols {
                 t,
@@ -333,6 +336,10 @@ impl Mapper {
                 t,
                 flag: h.get("armed")?,
             }),
+            Kind::ArmingState => Mapper::ArmingState(FlagCol {
+                t,
+                flag: h.get("arming_state")?,
+            }),
         })
     }
 
@@ -378,6 +385,15 @@ impl Mapper {
                 r.stamp(c.t)?,
                 SensorData::VehicleState(VehicleState {
                     armed: Some(r.int(c.flag, 0, 1, "0 or 1")? == 1),
+                    landed: None,
+                }),
+            )),
+            // ARMING_STATE_ARMED is 2 in every version (1.14's STANDBY and 1.15's
+            // DISARMED are 1).
+            Mapper::ArmingState(c) => Ok((
+                r.stamp(c.t)?,
+                SensorData::VehicleState(VehicleState {
+                    armed: Some(r.int(c.flag, 0, 255, "an integer 0..=255")? == 2),
                     landed: None,
                 }),
             )),
@@ -525,7 +541,10 @@ fn air_data(c: &AirDataCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4Log
     if !(crate::sample::BARO_MIN_PA..=crate::sample::BARO_MAX_PA).contains(&pressure_pa) {
         return Err(r.unusable(c.pressure, "not an air pressure in Pa"));
     }
-    let temperature = r.f64(c.temperature)?;
+    let temperature = match c.temperature {
+        Some(col) => r.f64(col)?,
+        None => f64::NAN,
+    };
     Ok((
         t,
         SensorData::Baro(crate::sample::Baro {
