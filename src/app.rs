@@ -228,6 +228,15 @@ pub async fn run_with(
                     .unwrap_or(serde_json::Value::Null)
             }),
             tap: tap.clone(),
+            mavlink_px4_time: {
+                let stats = mavlink_stats.clone();
+                Arc::new(move |host_us: i64| {
+                    crate::sync::lock(&stats.timesync)
+                        .remote_ns(host_us.saturating_mul(1000))
+                        .map(|ns| ns / 1000)
+                })
+            },
+            max_std_m: config.estimator.max_pos_std_m,
         },
         zenoh_out_stats,
     ));

@@ -479,7 +479,36 @@ pub struct OutputConfig {
     pub rmw_zenoh: bool,
     /// The ROS domain of the rmw_zenoh outputs (`ROS_DOMAIN_ID`).
     pub rmw_zenoh_domain_id: u32,
+    /// Publish the fused pose as px4_msgs/VehicleOdometry where PX4's EKF2 reads
+    /// external vision (`fmu/in/vehicle_visual_odometry`), valid poses only, each
+    /// passing px4-ros2-interface-lib's checks.
+    pub px4_odometry: bool,
+    /// Its key: through zenoh-bridge-ros2dds to uXRCE-DDS, or the key PX4 1.16's zenoh
+    /// module subscribes to. With `rmw_zenoh` also on its rmw_zenoh key.
+    pub px4_odometry_key: String,
+    /// The clock of its `timestamp_sample`: `agent` (this host's Unix time: PX4's
+    /// uXRCE-DDS client converts from the agent's clock) or `px4` (PX4's boot clock, for
+    /// its zenoh module, which converts nothing: from `px4_timesync_key`, else the
+    /// MAVLink TIMESYNC; withheld until one is known).
+    pub px4_clock: Px4Clock,
+    /// With `px4_clock = "px4"`: px4_msgs/TimesyncStatus (PX4's clock minus the
+    /// agent's, which runs on this host's).
+    pub px4_timesync_key: String,
+    /// How that key carries it (as an input's `transport`).
+    pub px4_timesync_transport: RosTransport,
 }
+
+/// The clock of the VehicleOdometry `timestamp_sample` skyfuse sends PX4.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Px4Clock {
+    #[default]
+    Agent,
+    Px4,
+}
+
+pub const DEFAULT_PX4_ODOMETRY_KEY: &str = "fmu/in/vehicle_visual_odometry";
+pub const DEFAULT_PX4_TIMESYNC_KEY: &str = "fmu/out/timesync_status";
 
 pub const DEFAULT_OUTPUT_PREFIX: &str = "skyfuse/{vehicle}";
 pub const DEFAULT_POSE_KEY: &str = "data_fusion/pose_msg";
@@ -505,6 +534,11 @@ impl Default for OutputConfig {
             ros_distro: "humble".into(),
             rmw_zenoh: false,
             rmw_zenoh_domain_id: 0,
+            px4_odometry: false,
+            px4_odometry_key: DEFAULT_PX4_ODOMETRY_KEY.into(),
+            px4_clock: Px4Clock::Agent,
+            px4_timesync_key: DEFAULT_PX4_TIMESYNC_KEY.into(),
+            px4_timesync_transport: RosTransport::Bridge,
         }
     }
 }
@@ -1013,6 +1047,18 @@ impl Config {
                 self.output.prefix_for(&self.service.vehicle) + "/pose",
             ),
             ("output.ros2_pose_key", self.output.ros2_pose_key.clone()),
+            (
+                "output.px4_odometry_key",
+                self.output.px4_odometry_key.clone(),
+            ),
+            // A ROS topic (a leading slash) or a key: subscribed to without the slash.
+            (
+                "output.px4_timesync_key",
+                self.output
+                    .px4_timesync_key
+                    .trim_start_matches('/')
+                    .to_string(),
+            ),
             (
                 "output.ros2_debug_prefix",
                 format!("{}/OF_sum", self.output.ros2_debug_prefix),

@@ -96,6 +96,8 @@ struct InputHistory {
     suppressed_logs: u64,
     /// Admission token bucket: (tokens, last refill).
     admission: (f64, Option<Micros>),
+    /// `type = "auto"` on rmw_zenoh: the type the last sample's key named.
+    key_type: Option<String>,
 }
 
 impl InputHistory {
@@ -374,7 +376,10 @@ impl Ingest {
             .map(|i| {
                 let mut st = i.status(now);
                 if i.config.auto_type {
-                    st.resolved_type = self.announced_type(&i.config.key);
+                    st.resolved_type = match i.config.transport {
+                        crate::config::RosTransport::RmwZenoh => i.history().key_type.clone(),
+                        _ => self.announced_type(&i.config.key),
+                    };
                 }
                 st
             })
@@ -413,14 +418,22 @@ impl Ingest {
                 input.reject(Rejection::WrongType(why), arrival_us);
                 return Vec::new();
             }
-            let key = &input.config.key;
+            let topic = &input.config.key;
             match (input.config.auto_type, ros_type, announced) {
                 (true, _, Some(a)) => match RosType::from_name(&a) {
-                    Some(t) => ros_type = Some(t),
+                    Some(t) => {
+                        if input.config.transport == crate::config::RosTransport::RmwZenoh {
+                            let mut h = input.history();
+                            if h.key_type.as_deref() != Some(a.as_str()) {
+                                h.key_type = Some(a.clone());
+                            }
+                        }
+                        ros_type = Some(t)
+                    }
                     None => {
                         input.reject(
                             Rejection::WrongType(format!(
-                                "{key} is announced as {a}, which skyfuse cannot decode"
+                                "{topic} is announced as {a}, which skyfuse cannot decode"
                             )),
                             arrival_us,
                         );
@@ -430,7 +443,7 @@ impl Ingest {
                 (true, _, None) => {
                     input.reject(
                         Rejection::WrongType(format!(
-                            "type = \"auto\" but no bridge announces {key} (no liveliness token)"
+                            "type = \"auto\" but no bridge announces {topic} (no liveliness token)"
                         )),
                         arrival_us,
                     );

@@ -92,5 +92,10 @@ pub enum OutputDetail {
         debug_points: u64,
         events: u64,
         health: u64,
+        /// px4_msgs/VehicleOdometry sent (`[output] px4_odometry`), poses not sent as
+        /// one, and why the last was not.
+        px4_odometry_sent: u64,
+        px4_odometry_withheld: u64,
+        px4_odometry_not_sending: Option<String>,
     },
 }

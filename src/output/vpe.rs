@@ -18,6 +18,8 @@ pub enum VpeError {
     Invalid(String),
     #[error("{field} is not finite ({value})")]
     NotFinite { field: &'static str, value: f64 },
+    #[error("px4_msgs/VehicleOdometry refused: {0}")]
+    Px4(String),
 }
 
 pub use crate::config::MessageSet;
@@ -202,6 +204,85 @@ pub fn pose_messages(
         }));
     }
     Ok(out)
+}
+
+/// Smallest variance sent to PX4: px4-ros2-interface-lib refuses 0, and EKF2 raises
+/// any variance to its own noise floor (`EKF2_EVP_NOISE` ...) anyway.
+const PX4_MIN_VARIANCE: f64 = 1e-6;
+
+/// The fused pose as px4_msgs/VehicleOdometry for `fmu/in/vehicle_visual_odometry`:
+/// NED position and velocity, body FRD → NED quaternion, body FRD rates, per-axis
+/// variances, the reset counter, a quality of 1–100; `timestamp` 0 (PX4 stamps it at
+/// arrival) and `timestamp_sample` as given (see `[output] px4_clock`). An invalid
+/// pose, a non-finite value, or a message px4-ros2-interface-lib would refuse is an
+/// error, never a message.
+pub fn px4_vehicle_odometry(
+    p: &FusedPose,
+    timestamp_sample_us: u64,
+    max_std_m: f64,
+) -> Result<crate::codec::ros::px4::VehicleOdometry, VpeError> {
+    use crate::codec::ros::px4;
+    if !p.valid {
+        return Err(VpeError::Invalid(
+            p.invalid_reason
+                .clone()
+                .unwrap_or_else(|| "not valid".into()),
+        ));
+    }
+    let pos = enu_to_ned(p.position);
+    let vel = enu_to_ned(p.velocity);
+    let q = q_enu_flu_to_ned_frd(p.orientation);
+    let cov = pose_covariance_ned(p);
+    let perm = Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0);
+    let vcov = perm * p.velocity_cov * perm.transpose();
+    let var = |field: &'static str, v: f64| check(field, v.max(PX4_MIN_VARIANCE));
+    let w = p.angular_velocity.map(|w| Vector3::new(w.x, -w.y, -w.z));
+    let m = px4::VehicleOdometry {
+        timestamp: 0,
+        timestamp_sample: timestamp_sample_us,
+        pose_frame: px4::POSE_FRAME_NED,
+        position: [check("x", pos.x)?, check("y", pos.y)?, check("z", pos.z)?],
+        q: [
+            check("q.w", q.w)?,
+            check("q.x", q.i)?,
+            check("q.y", q.j)?,
+            check("q.z", q.k)?,
+        ],
+        velocity_frame: px4::VELOCITY_FRAME_NED,
+        velocity: [
+            check("vx", vel.x)?,
+            check("vy", vel.y)?,
+            check("vz", vel.z)?,
+        ],
+        // Unknown rates are NaN, as the interface library sends them.
+        angular_velocity: match w {
+            Some(w) => [
+                check("rollspeed", w.x)?,
+                check("pitchspeed", w.y)?,
+                check("yawspeed", w.z)?,
+            ],
+            None => [f32::NAN; 3],
+        },
+        position_variance: [
+            var("position variance x", cov[(0, 0)])?,
+            var("position variance y", cov[(1, 1)])?,
+            var("position variance z", cov[(2, 2)])?,
+        ],
+        orientation_variance: [
+            var("roll variance", cov[(3, 3)])?,
+            var("pitch variance", cov[(4, 4)])?,
+            var("yaw variance", cov[(5, 5)])?,
+        ],
+        velocity_variance: [
+            var("velocity variance x", vcov[(0, 0)])?,
+            var("velocity variance y", vcov[(1, 1)])?,
+            var("velocity variance z", vcov[(2, 2)])?,
+        ],
+        reset_counter: p.reset_counter,
+        quality: quality(p, max_std_m).max(1),
+    };
+    m.check().map_err(VpeError::Px4)?;
+    Ok(m)
 }
 
 /// The EKF origin and home for an autopilot with no GNSS (ArduPilot's non-GPS

@@ -27,6 +27,9 @@ pub struct ZenohOutStats {
     pub health: AtomicU64,
     pub errors: AtomicU64,
     pub last_error: Mutex<Option<String>>,
+    pub px4_odometry: AtomicU64,
+    pub px4_withheld: AtomicU64,
+    pub px4_not_sending: Mutex<Option<String>>,
 }
 
 impl ZenohOutStats {
@@ -37,6 +40,17 @@ impl ZenohOutStats {
             tracing::warn!("Zenoh output: {e}");
         }
         *l = Some(e);
+    }
+
+    /// A pose was not sent to PX4 as VehicleOdometry, for `why`.
+    fn px4_withheld(&self, why: String) {
+        self.px4_withheld.fetch_add(1, Relaxed);
+        let mut r = crate::sync::lock(&self.px4_not_sending);
+        let kind = |t: &str| t.split(':').next().unwrap_or(t).to_string();
+        if r.as_deref().map(kind) != Some(kind(&why)) {
+            tracing::warn!("px4_msgs odometry: not sending: {why}");
+        }
+        *r = Some(why);
     }
 
     /// A pose was published at `now`.
@@ -81,6 +95,9 @@ impl ZenohOutStats {
                 debug_points: self.debug_points.load(Relaxed),
                 events: self.events.load(Relaxed),
                 health: self.health.load(Relaxed),
+                px4_odometry_sent: self.px4_odometry.load(Relaxed),
+                px4_odometry_withheld: self.px4_withheld.load(Relaxed),
+                px4_odometry_not_sending: crate::sync::lock(&self.px4_not_sending).clone(),
             },
         }
     }
@@ -180,6 +197,25 @@ struct RmwOutputs {
 /// The node's name on the rmw_zenoh graph.
 const RMW_NODE: &str = "skyfuse";
 
+/// The outputs rmw_zenoh carries: (bridge key, ROS 2 type, RIHS01 hash).
+fn rmw_outputs(cfg: &OutputConfig) -> Vec<(String, &'static str, Option<String>)> {
+    let mut v: Vec<_> = cfg
+        .ros2_outputs()
+        .into_iter()
+        .map(|(key, ty)| (key, ty, crate::ros_graph::rihs01(ty)))
+        .collect();
+    if cfg.px4_odometry {
+        use crate::codec::ros::px4::{type_hash, Px4Type, Px4Version};
+        let ty = Px4Type::VehicleOdometry;
+        v.push((
+            cfg.px4_odometry_key.clone(),
+            ty.ros2_name(),
+            Some(type_hash(ty, Px4Version::V1_16)),
+        ));
+    }
+    v
+}
+
 impl RmwOutputs {
     async fn declare(session: &zenoh::Session, cfg: &OutputConfig) -> RmwOutputs {
         use crate::codec::ros::rmw_zenoh as rz;
@@ -188,8 +224,8 @@ impl RmwOutputs {
         let domain = cfg.rmw_zenoh_domain_id;
         let mut keys = vec![rz::node_token(domain, &zid, 0, "/", RMW_NODE)];
         let mut topics = BTreeMap::new();
-        for (i, (key, ty)) in cfg.ros2_outputs().into_iter().enumerate() {
-            let Some(hash) = crate::ros_graph::rihs01(ty) else {
+        for (i, (key, ty, hash)) in rmw_outputs(cfg).into_iter().enumerate() {
+            let Some(hash) = hash else {
                 tracing::warn!(%key, "rmw_zenoh: no type hash for {ty}: not published");
                 continue;
             };
@@ -259,6 +295,50 @@ pub struct ZenohOutInputs {
     pub health: Arc<dyn Fn() -> Value + Send + Sync>,
     /// The ROS 2 CDR outputs go to the recorder and Foxglove too.
     pub tap: crate::tap::Tap,
+    /// PX4's clock at a host time, µs, as the MAVLink TIMESYNC knows it (`None` before).
+    pub mavlink_px4_time: Arc<dyn Fn(i64) -> Option<i64> + Send + Sync>,
+    /// The horizontal 1σ at which a pose's quality reaches 0 (the estimator's limit).
+    pub max_std_m: f64,
+}
+
+/// PX4's clock minus the agent's (this host's), µs, from px4_msgs/TimesyncStatus.
+type Px4Offset = Arc<Mutex<Option<i64>>>;
+
+/// Follow TimesyncStatus on `[output] px4_timesync_key` into `offset`.
+async fn watch_px4_timesync(
+    session: &zenoh::Session,
+    cfg: &OutputConfig,
+    offset: Px4Offset,
+    stats: Arc<ZenohOutStats>,
+) -> Option<zenoh::pubsub::Subscriber<()>> {
+    use crate::codec::ros::px4;
+    use crate::config::RosTransport;
+    let key = match cfg.px4_timesync_transport {
+        RosTransport::RmwZenoh => crate::codec::ros::rmw_zenoh::subscription_key(
+            cfg.rmw_zenoh_domain_id,
+            &cfg.px4_timesync_key,
+            Some(px4::Px4Type::TimesyncStatus.ros2_name()),
+        ),
+        _ => cfg.px4_timesync_key.trim_start_matches('/').to_string(),
+    };
+    let xcdr2 = cfg.px4_timesync_transport == RosTransport::Px4Zenoh;
+    let what = key.clone();
+    match session
+        .declare_subscriber(&key)
+        .callback(
+            move |s| match px4::decode_timesync_status(&s.payload().to_bytes(), xcdr2) {
+                Ok(t) => *crate::sync::lock(&offset) = Some(t.estimated_offset_us),
+                Err(e) => stats.error(format!("{what}: TimesyncStatus: {e}")),
+            },
+        )
+        .await
+    {
+        Ok(sub) => Some(sub),
+        Err(e) => {
+            tracing::warn!(%key, "px4_msgs odometry: cannot subscribe to TimesyncStatus: {e}");
+            None
+        }
+    }
 }
 
 /// Run until the pose channel closes.
@@ -290,11 +370,20 @@ pub async fn run(
             }
         }
     };
-    let mut rmw = if cfg.ros2 && cfg.rmw_zenoh {
+    let mut rmw = if cfg.rmw_zenoh && (cfg.ros2 || cfg.px4_odometry) {
         Some(RmwOutputs::declare(&session, &cfg).await)
     } else {
         None
     };
+    let px4_offset: Px4Offset = Default::default();
+    let _px4_timesync = if cfg.px4_odometry && cfg.px4_clock == crate::config::Px4Clock::Px4 {
+        watch_px4_timesync(&session, &cfg, px4_offset.clone(), stats.clone()).await
+    } else {
+        None
+    };
+    let px4_type = RosType::Px4(crate::codec::ros::px4::Px4Msg::new(
+        crate::codec::ros::px4::Px4Type::VehicleOdometry,
+    ));
     // The debug series change with every sample: watched only when they are published.
     let debug_on = cfg.ros2 && cfg.ros2_debug;
     tracing::info!(prefix = %prefix, json = cfg.json, ros2 = cfg.ros2, pose_key = %cfg.ros2_pose_key, "Zenoh output running");
@@ -319,6 +408,40 @@ pub async fn run(
                             ok &= put(cfg.ros2_pose_key.clone(), cdr, None).await;
                         }
                         Err(e) => stats.error(format!("{}: {e}", cfg.ros2_pose_key)),
+                    }
+                }
+                if cfg.px4_odometry {
+                    let stamp = match cfg.px4_clock {
+                        crate::config::Px4Clock::Agent => Some(p.time_us),
+                        crate::config::Px4Clock::Px4 => {
+                            let offset = *crate::sync::lock(&px4_offset);
+                            offset
+                                .map(|o| p.time_us + o)
+                                .or_else(|| (inp.mavlink_px4_time)(p.time_us))
+                        }
+                    };
+                    let msg = match stamp {
+                        Some(t) if t > 0 => crate::output::vpe::px4_vehicle_odometry(&p, t as u64, inp.max_std_m)
+                            .map_err(|e| e.to_string()),
+                        Some(t) => Err(format!("PX4 clock: timestamp_sample {t} µs is not after PX4's boot")),
+                        None => Err(format!(
+                            "PX4 clock not known yet: no TimesyncStatus on {} and no MAVLink TIMESYNC",
+                            cfg.px4_timesync_key
+                        )),
+                    };
+                    match msg {
+                        Ok(m) => {
+                            let cdr = m.to_cdr();
+                            inp.tap.ros2_out(p.time_us, &cfg.px4_odometry_key, px4_type, &cdr);
+                            if let Some((k, a)) = rmw.as_mut().and_then(|r| r.next(&cfg.px4_odometry_key)) {
+                                put(k, cdr.clone(), Some(a)).await;
+                            }
+                            if put(cfg.px4_odometry_key.clone(), cdr, None).await {
+                                stats.px4_odometry.fetch_add(1, Relaxed);
+                                *crate::sync::lock(&stats.px4_not_sending) = None;
+                            }
+                        }
+                        Err(why) => stats.px4_withheld(why),
                     }
                 }
                 if ok {

@@ -33,6 +33,12 @@ pub enum DecodeError {
     BadString { field: String },
     #[error("{field}: sequence length {len} exceeds the payload")]
     BadLength { field: String, len: usize },
+    #[error("{message}: {len} bytes after the message (a longer layout than the one read)")]
+    TrailingBytes { message: String, len: usize },
+    /// Decoded, but no sample can be made of it (a position not on Earth, no
+    /// integration time), the field named.
+    #[error("{0}")]
+    Unusable(String),
     #[error("{field} is {value} (NaN/Inf not allowed)")]
     NonFinite { field: String, value: f64 },
     #[error("{field} = {value} is out of range: {reason}")]
@@ -88,6 +94,8 @@ impl DecodeError {
             DecodeError::BadEncapsulation(_) => "bad_encapsulation",
             DecodeError::BadString { .. } => "bad_string",
             DecodeError::BadLength { .. } => "bad_length",
+            DecodeError::TrailingBytes { .. } => "trailing_bytes",
+            DecodeError::Unusable(_) => "unusable",
             DecodeError::NonFinite { .. } => "non_finite",
             DecodeError::OutOfRange { .. } => "out_of_range",
             DecodeError::Json(_) => "json",

@@ -828,16 +828,11 @@ pub fn read_values(msg: Px4Msg, payload: &[u8]) -> Result<(Px4Version, Vec<f64>)
         }
     }
     // XCDR1 writers pad the end to 4 at most: more left over is a longer layout (a
-    // later release) read by an older list. PX4 1.16's zenoh module sends its whole
-    // buffer, so there the tail says nothing.
-    if !msg.xcdr2 && r.remaining() > 3 {
-        return Err(DecodeError::BadLength {
-            field: format!(
-                "{} (PX4 {} layout): {} bytes after the message",
-                msg.ty.ros2_name(),
-                version.as_str(),
-                r.remaining()
-            ),
+    // later release) read by an older list. Where the layout was named (a type hash,
+    // PX4's zenoh module, which sends its whole buffer) the tail says nothing.
+    if msg.version.is_none() && r.remaining() > 3 {
+        return Err(DecodeError::TrailingBytes {
+            message: format!("{} (PX4 {} layout)", msg.ty.ros2_name(), version.as_str()),
             len: r.remaining(),
         });
     }
@@ -846,8 +841,8 @@ pub fn read_values(msg: Px4Msg, payload: &[u8]) -> Result<(Px4Version, Vec<f64>)
 
 /// One mapping per type and layout, built on first use.
 fn mapper(ty: Px4Type, version: Px4Version) -> Option<&'static Result<MessageMapper, String>> {
-    static MAPPERS: OnceLock<Vec<((Px4Type, Px4Version), Result<MessageMapper, String>)>> =
-        OnceLock::new();
+    type Mappers = Vec<((Px4Type, Px4Version), Result<MessageMapper, String>)>;
+    static MAPPERS: OnceLock<Mappers> = OnceLock::new();
     let all = MAPPERS.get_or_init(|| {
         Px4Type::ALL
             .into_iter()
@@ -901,13 +896,13 @@ pub fn decode(msg: Px4Msg, payload: &[u8]) -> Result<Option<Decoded>, DecodeErro
         let text = e.to_string();
         let mut parts = text.splitn(4, ':');
         let (name, _line, _col, rest) = (parts.next(), parts.next(), parts.next(), parts.next());
-        DecodeError::UnsupportedMessage(match (name, rest) {
+        DecodeError::Unusable(match (name, rest) {
             (Some(n), Some(r)) => format!("{n} (PX4 {}):{r}", version.as_str()),
             _ => text,
         })
     })?;
     data.validate()
-        .map_err(|e| DecodeError::UnsupportedMessage(format!("{}: {e}", msg.ty.ros2_name())))?;
+        .map_err(|e| DecodeError::Unusable(format!("{}: {e}", msg.ty.ros2_name())))?;
     Ok(Some(Decoded {
         stamp_us: Some(stamp_us),
         mav_origin: None,

@@ -336,7 +336,8 @@ fn vehicle_odometry_check_refuses_what_the_interface_library_refuses() {
     let good = VehicleOdometry::from_cdr(&vectors()[3].xcdr1).unwrap();
     assert_eq!(good.check(), Ok(()));
     let nan = f32::NAN;
-    let cases: Vec<(&str, Box<dyn Fn(&mut VehicleOdometry)>)> = vec![
+    type Change = Box<dyn Fn(&mut VehicleOdometry)>;
+    let cases: Vec<(&str, Change)> = vec![
         (
             "all empty",
             Box::new(move |m| {
@@ -386,7 +387,7 @@ fn bad_payloads_are_errors_never_panics() {
             assert!(
                 matches!(
                     read_values(Px4Msg::new(v.ty), &long),
-                    Err(DecodeError::BadLength { .. })
+                    Err(DecodeError::TrailingBytes { .. })
                 ),
                 "{:?} {:?}",
                 v.ty,
