@@ -4,6 +4,12 @@ they reach Zenoh, serialised by CycloneDDS' Python binding (the serialiser PX4's
 module itself uses), with PX4 1.16's field lists.
 
     px4_zenoh_node.py --connect tcp/127.0.0.1:7447 --style bridge|rmw_zenoh|px4_zenoh [--seconds 10]
+    px4_zenoh_node.py --bag DIR [--seconds 60]
+
+The second form writes the same flight, at once, as a ROS 2 user's `ros2 bag record`
+of PX4's `/fmu/out/...` topics would hold it: a rosbag2 bag (MCAP storage) written by
+rosbags, the px4_msgs types registered from the field lists below, the stamps in the
+agent's clock. It prints {"start": unix time of the circle's t = 0, "counts": ...}.
 
 - `bridge`: uXRCE-DDS through zenoh-bridge-ros2dds: keys `fmu/out/<topic>`, XCDR1, the
   stamps moved to the agent's clock (this host's Unix time), as PX4 does with
@@ -220,12 +226,62 @@ def check(o):
     return None
 
 
+def write_bag(bag, seconds):
+    """The flight as a rosbag2 bag (MCAP), written by rosbags, on a simulated clock."""
+    from pathlib import Path
+
+    import numpy as np
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for name in FIELDS:
+        text = "".join(f"{f[1]}[{f[2]}] {f[0]}\n" if len(f) == 3 else f"{f[1]} {f[0]}\n"
+                       for f in FIELDS[name])
+        store.register(get_types_from_msg(text, f"px4_msgs/msg/{name}"))
+    start = 1_790_000_000.0
+    boot = start - 100.0
+    events = []
+    for n, (topic, name, hz) in TOPICS.items():
+        k = 0
+        while k / hz < seconds:
+            events.append((start + k / hz, n))
+            k += 1
+    events.sort()
+    counts = {}
+    with Writer(Path(bag), version=8, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = {}
+        for now, n in events:
+            topic, name, _ = TOPICS[n]
+            now_us = int(now * 1e6)
+            m = message(name, now_us, now - start, int((now - boot) * 1e6) - now_us, now_us)
+            kwargs = {}
+            for f in FIELDS[name]:
+                v = m[f[0]]
+                if len(f) == 3:
+                    v = np.array(v, dtype={"float32": np.float32, "float64": np.float64,
+                                           "uint8": np.uint8}[f[1]])
+                kwargs[f[0]] = v
+            full = f"px4_msgs/msg/{name}"
+            cdr = bytes(store.serialize_cdr(store.types[full](**kwargs), full))
+            if topic not in conns:
+                conns[topic] = w.add_connection("/" + topic, full, typestore=store)
+            w.write(conns[topic], int(now * 1e9), cdr)
+            counts["/" + topic] = counts.get("/" + topic, 0) + 1
+    print(json.dumps({"start": start, "counts": counts}))
+
+
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--connect", required=True)
-    ap.add_argument("--style", choices=["bridge", "rmw_zenoh", "px4_zenoh"], required=True)
+    ap.add_argument("--connect")
+    ap.add_argument("--style", choices=["bridge", "rmw_zenoh", "px4_zenoh"])
     ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--bag")
     a = ap.parse_args()
+    if a.bag:
+        write_bag(a.bag, a.seconds)
+        return
+    if not (a.connect and a.style):
+        ap.error("--connect and --style (or --bag)")
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("connect/endpoints", json.dumps([a.connect]))

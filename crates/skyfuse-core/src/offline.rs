@@ -85,6 +85,8 @@ pub struct Recorder {
     geodetic_origins: SourceMap<LocalEnu>,
     /// Newest flow `OF_sum` point taken per source.
     flow_taken: SourceMap<i64>,
+    /// Sources with positions and no orientation (GNSS): `()` per id.
+    position_only: SourceMap<()>,
     /// Time origin, µs (t = 0 in the files).
     pub t0_us: i64,
 }
@@ -150,6 +152,7 @@ impl Recorder {
                     .get_or_insert_with(|| LocalEnu::new(g.lat_deg, g.lon_deg, g.alt_m));
                 let p = origin.to_enu(g.lat_deg, g.lon_deg, g.alt_m);
                 let cov = g.position_cov.as_deref().copied().unwrap_or_default();
+                self.position_only.get_or_insert_with(id, || ());
                 push_source(self, id, t, p, UnitQuaternion::identity(), cov);
             }
             SensorData::Odometry(o) => {
@@ -537,6 +540,29 @@ fn ape_aligned(r: &Trajectory, e: &Trajectory, opts: ApeOptions) -> Option<ApeSt
     .ok()
 }
 
+/// A reference with positions only (GNSS) given the estimate's orientation at each of
+/// its poses (the nearest in time), so that registering the estimate at a first pose
+/// moves it and never turns it: both are in the one geographic ENU frame, and the
+/// reference's placeholder orientation (identity: facing east) would turn the estimate
+/// by its heading at that pose.
+fn with_orientation_of(r: &Trajectory, est: &Trajectory) -> Trajectory {
+    let mut out = r.clone();
+    if est.t.is_empty() {
+        return out;
+    }
+    for (q, &t) in out.q.iter_mut().zip(&r.t) {
+        let i = est.t.partition_point(|&x| x < t);
+        let nearest = match (i.checked_sub(1), est.t.get(i)) {
+            (Some(a), Some(&b)) if t - est.t[a] <= b - t => a,
+            (_, Some(_)) => i,
+            (Some(a), None) => a,
+            (None, None) => continue,
+        };
+        *q = est.q[nearest];
+    }
+    out
+}
+
 /// Keep the poses with `t` inside `window` (s).
 fn windowed(tr: &Trajectory, window: Option<(f64, f64)>) -> Trajectory {
     let Some((a, b)) = window else {
@@ -620,7 +646,14 @@ fn finish(
                 name: rn,
                 max_diff_s,
             } => (
-                rec.sources.get(rn).map(|r| windowed(r, window)),
+                rec.sources.get(rn).map(|r| {
+                    let r = windowed(r, window);
+                    if rec.position_only.get(rn).is_some() {
+                        with_orientation_of(&r, &tr)
+                    } else {
+                        r
+                    }
+                }),
                 ApeOptions {
                     max_diff_s: *max_diff_s,
                     ..ApeOptions::default()
@@ -660,6 +693,13 @@ fn finish(
         }
         Reference::Source { name, max_diff_s } => rec.sources.get(name).and_then(|r| {
             let own = rec.source_cov.get(name).map(Vec::as_slice);
+            let oriented;
+            let r = if rec.position_only.get(name).is_some() {
+                oriented = with_orientation_of(r, &rec.fused);
+                &oriented
+            } else {
+                r
+            };
             consistency(r, own, &rec.fused, &rec.fused_cov, *max_diff_s, true)
         }),
     };
@@ -1112,6 +1152,35 @@ mod reference_tests {
             arrival_us: t,
             data,
         }
+    }
+
+    /// A GNSS track has no orientation: registering a north-facing estimate on it at
+    /// the first pose moves the estimate and does not turn it by its heading.
+    #[test]
+    fn a_position_only_reference_registers_without_turning() {
+        let north = UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        let mut gps = Trajectory::default();
+        let mut est = Trajectory::default();
+        for i in 0..50 {
+            let t = f64::from(i) * 0.1;
+            let p = Vector3::new(0.5 * t, 2.0 * t, 0.0);
+            push(&mut gps, t, p, UnitQuaternion::identity());
+            // The estimate's frame: the same axes, its origin 3 m away.
+            push(&mut est, t, p + Vector3::new(3.0, -1.0, 0.0), north);
+        }
+        let origin = ApeOptions {
+            align_origin: true,
+            ..ApeOptions::default()
+        };
+        let turned = evo_ape(&gps, &est, &origin).unwrap();
+        assert!(
+            turned.rmse > 1.0,
+            "as evo does with a placeholder: {}",
+            turned.rmse
+        );
+        let oriented = with_orientation_of(&gps, &est);
+        let moved = evo_ape(&oriented, &est, &origin).unwrap();
+        assert!(moved.rmse < 1e-9, "{}", moved.rmse);
     }
 
     /// An autopilot estimate with a heading but never a position (EKF2 before its
