@@ -1,7 +1,8 @@
 //! Mutation fuzzing of every decoder the service exposes to the outside, from real seeds
 //! (the golden vectors and the payloads captured from the real bridges in tests/data):
 //! ROS 2 CDR (each supported type, both byte orders), ROS 1, mavlink-server JSON, raw
-//! MAVLink frames (v1 and v2, several per payload), skyfuse JSON, the TOML config, the
+//! MAVLink frames (v1 and v2, several per payload), PX4's px4_msgs (every layout, XCDR1
+//! and XCDR2), skyfuse JSON, the TOML config, the
 //! websocket client message, the fault-control body and MCAP files (`skyfuse replay
 //! FILE.mcap`: recordings as the recorder writes them, chunked and not, zstd and lz4).
 //!
@@ -156,6 +157,7 @@ fn targets() -> Vec<Target> {
                 Decoder::Mcap => mcap_seeds(),
                 Decoder::Dataflash => dataflash_seeds(),
                 Decoder::Timesync => timesync_seeds(),
+                Decoder::Px4Msgs => px4_seeds(),
                 Decoder::ControlBody => vec![
                     br#"{"sensor": "gps", "fault": "stop", "duration_s": 10}"#.to_vec(),
                     br#"{"sensor":"flow","fault":"dark-floor"}"#.to_vec(),
@@ -165,6 +167,41 @@ fn targets() -> Vec<Target> {
             Target { decoder, seeds }
         })
         .collect()
+}
+
+/// px4_msgs as rosbags and CycloneDDS wrote them from PX4's definitions (every type
+/// and release, XCDR1, and XCDR2 as PX4 1.16's zenoh module sends it), each with the
+/// prefix byte naming its type: once found from the payload, once named.
+fn px4_seeds() -> Vec<Vec<u8>> {
+    use skyfuse::codec::ros::px4::{Px4Type, Px4Version};
+    let v = read_json("px4_vectors.json");
+    let mut out = vec![];
+    for vec in v["vectors"].as_array().into_iter().flatten() {
+        let Some(ty) = vec["type"]
+            .as_str()
+            .and_then(|n| Px4Type::ALL.into_iter().find(|t| t.ros2_name() == n))
+        else {
+            continue;
+        };
+        let version = Px4Version::ALL
+            .into_iter()
+            .find(|r| vec["version"].as_str() == Some(r.as_str()));
+        let mut add = |version, xcdr2, bytes: Vec<u8>| {
+            out.push(
+                std::iter::once(Decoder::px4_byte(ty, version, xcdr2))
+                    .chain(bytes)
+                    .collect(),
+            );
+        };
+        if let Some(h) = vec["xcdr1"].as_str() {
+            add(None, false, hex(h));
+            add(version, false, hex(h));
+        }
+        if let Some(h) = vec["px4_zenoh_1_16"].as_str() {
+            add(Some(Px4Version::V1_16), true, hex(h));
+        }
+    }
+    out
 }
 
 /// TIMESYNC frames as an autopilot sends them: a request, an answer, both in one read;

@@ -32,10 +32,13 @@ pub enum Target {
     /// check, and the clock estimate it feeds; bytes that are no frame drive the
     /// estimate directly as (tc1, ts1, arrival) triples.
     Timesync,
+    /// PX4's px4_msgs; the first byte picks the type, the layout (found from the
+    /// payload, or 1.14/1.15/1.16 named) and the alignment (XCDR2 in its top bit).
+    Px4Msgs,
 }
 
 impl Target {
-    pub const ALL: [Target; 11] = [
+    pub const ALL: [Target; 12] = [
         Target::Ros2Cdr,
         Target::Ros1,
         Target::MavlinkJson,
@@ -47,6 +50,7 @@ impl Target {
         Target::Dataflash,
         Target::ControlBody,
         Target::Timesync,
+        Target::Px4Msgs,
     ];
 
     pub fn name(self) -> &'static str {
@@ -62,6 +66,7 @@ impl Target {
             Target::Dataflash => "dataflash",
             Target::ControlBody => "control_body",
             Target::Timesync => "timesync",
+            Target::Px4Msgs => "px4_msgs",
         }
     }
 
@@ -132,7 +137,50 @@ impl Target {
                 );
                 !frames.is_empty()
             }
+            Target::Px4Msgs => {
+                use codec::ros::px4::{self, Px4Msg, Px4Type, Px4Version};
+                let Some((&i, rest)) = bytes.split_first() else {
+                    return false;
+                };
+                let n = Px4Type::ALL.len();
+                let low = usize::from(i & 0x7f);
+                let ty = Px4Type::ALL[low % n];
+                let version = match (low / n) % 4 {
+                    0 => None,
+                    v => Px4Version::ALL.get(v - 1).copied(),
+                };
+                let msg = Px4Msg {
+                    ty,
+                    version,
+                    xcdr2: i & 0x80 != 0,
+                };
+                // The same bytes as a key's type hash, TimesyncStatus and the odometry
+                // skyfuse writes (read back and checked).
+                if let Ok(text) = std::str::from_utf8(rest) {
+                    let _ = px4::version_of_hash(ty, text);
+                }
+                let _ = px4::decode_timesync_status(rest, msg.xcdr2);
+                if let Ok(o) = px4::VehicleOdometry::from_cdr(rest) {
+                    let _ = o.check();
+                }
+                px4::decode(msg, rest).is_ok_and(|d| d.is_some())
+            }
         }
+    }
+
+    /// The prefix byte that makes [`Target::decode`] read the rest as px4_msgs `ty` in
+    /// `version` (`None`: found from the payload), XCDR2 if `xcdr2`.
+    pub fn px4_byte(
+        ty: codec::ros::px4::Px4Type,
+        version: Option<codec::ros::px4::Px4Version>,
+        xcdr2: bool,
+    ) -> u8 {
+        use codec::ros::px4::{Px4Type, Px4Version};
+        let t = Px4Type::ALL.iter().position(|x| *x == ty).unwrap_or(0);
+        let v = version.map_or(0, |v| {
+            1 + Px4Version::ALL.iter().position(|x| *x == v).unwrap_or(0)
+        });
+        (t + Px4Type::ALL.len() * v) as u8 | if xcdr2 { 0x80 } else { 0 }
     }
 
     /// The prefix byte that makes [`Target::decode`] read the rest as `ty` (ROS targets).

@@ -1295,6 +1295,74 @@ mod tests {
     use super::*;
 
     #[test]
+    fn px4_msgs_inputs_and_the_px4_odometry_output_are_checked() {
+        let input = |kind: &str, extra: &str| {
+            Config::from_toml_str(
+                &format!("[[inputs]]\nid = \"imu\"\nkind = \"{kind}\"\nkey = \"fmu/out/sensor_combined\"\nrate_hz = 200.0\n{extra}"),
+                "t.toml",
+            )
+        };
+        let c = input(
+            "imu",
+            "format = \"ros2\"\ntype = \"px4_msgs/msg/SensorCombined\"\ntransport = \"px4_zenoh\"\n",
+        )
+        .expect("config");
+        // PX4 1.16's module publishes on the key it was given, verbatim.
+        assert_eq!(c.inputs[0].key_exprs(), vec!["fmu/out/sensor_combined"]);
+        let c = input(
+            "imu",
+            "format = \"ros2\"\ntype = \"px4_msgs/msg/SensorCombined\"\ntransport = \"rmw_zenoh\"\n",
+        )
+        .expect("config");
+        assert_eq!(
+            c.inputs[0].key_exprs(),
+            vec!["0/fmu/out/sensor_combined/px4_msgs::msg::dds_::SensorCombined_/*"]
+        );
+        for (kind, extra, says) in [
+            (
+                "imu",
+                "format = \"ros2\"\ntype = \"auto\"\ntransport = \"px4_zenoh\"\n",
+                "needs a px4_msgs `type`",
+            ),
+            (
+                "imu",
+                "format = \"ros2\"\ntype = \"sensor_msgs/msg/Imu\"\ntransport = \"px4_zenoh\"\n",
+                "needs a px4_msgs `type`",
+            ),
+            (
+                "imu",
+                "format = \"ros1\"\ntype = \"px4_msgs/msg/SensorCombined\"\n",
+                "ROS 2 only",
+            ),
+            (
+                "gnss",
+                "format = \"ros2\"\ntype = \"px4_msgs/msg/SensorCombined\"\n",
+                "gives imu samples",
+            ),
+            // A clock, not a sensor: the odometry output reads it.
+            (
+                "imu",
+                "format = \"ros2\"\ntype = \"px4_msgs/msg/TimesyncStatus\"\n",
+                "unknown ROS message type",
+            ),
+        ] {
+            let e = input(kind, extra).expect_err(extra).to_string();
+            assert!(e.contains(says), "{extra}: {e}");
+        }
+        // The output: a ROS topic for the TimesyncStatus key, an unknown clock refused.
+        let c = Config::from_toml_str(
+            "[output]\npx4_odometry = true\npx4_clock = \"px4\"\npx4_timesync_key = \"/fmu/out/timesync_status\"\npx4_timesync_transport = \"rmw_zenoh\"\n",
+            "t.toml",
+        )
+        .expect("config");
+        assert_eq!(c.output.px4_clock, Px4Clock::Px4);
+        let e = Config::from_toml_str("[output]\npx4_clock = \"gps\"\n", "t.toml")
+            .expect_err("unknown clock")
+            .to_string();
+        assert!(e.contains("px4_clock") || e.contains("agent"), "{e}");
+    }
+
+    #[test]
     fn rmw_zenoh_inputs_subscribe_to_its_keys_and_bad_settings_are_named() {
         let input = |extra: &str| {
             Config::from_toml_str(

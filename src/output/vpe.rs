@@ -383,6 +383,45 @@ mod tests {
     };
 
     #[test]
+    fn px4_odometry_is_ned_frd_and_passes_the_interface_library_checks() {
+        let m = px4_vehicle_odometry(&pose(), 123_456, 5.0).expect("valid pose");
+        // North 2, east 1, down -3; facing north: the identity in NED/FRD.
+        assert_eq!(m.position, [2.0, 1.0, -3.0]);
+        assert!((m.q[0].abs() - 1.0).abs() < 1e-6, "{:?}", m.q);
+        assert_eq!(m.velocity, [0.0, 0.5, 0.0]);
+        assert_eq!((m.pose_frame, m.velocity_frame), (1, 1));
+        assert_eq!(m.position_variance, [0.04, 0.01, 0.09]);
+        assert_eq!((m.timestamp, m.timestamp_sample), (0, 123_456));
+        assert_eq!(m.reset_counter, 3);
+        assert!((1..=100).contains(&m.quality));
+        // No rates known: NaN, as the interface library leaves them.
+        assert!(m.angular_velocity.iter().all(|w| w.is_nan()));
+        assert_eq!(m.check(), Ok(()));
+        // A zero variance goes out as the smallest positive one; never 0.
+        let mut p = pose();
+        p.orientation_cov = Matrix3::zeros();
+        let m = px4_vehicle_odometry(&p, 1, 5.0).expect("valid pose");
+        assert!(m.orientation_variance.iter().all(|v| *v > 0.0));
+        // Nothing invalid, nothing non-finite, no timestamp_sample 0.
+        let mut p = pose();
+        p.valid = false;
+        assert!(matches!(
+            px4_vehicle_odometry(&p, 1, 5.0),
+            Err(VpeError::Invalid(_))
+        ));
+        let mut p = pose();
+        p.velocity.y = f64::NAN;
+        assert!(matches!(
+            px4_vehicle_odometry(&p, 1, 5.0),
+            Err(VpeError::NotFinite { .. })
+        ));
+        assert!(matches!(
+            px4_vehicle_odometry(&pose(), 0, 5.0),
+            Err(VpeError::Px4(_))
+        ));
+    }
+
+    #[test]
     fn ned_frames_and_signs() {
         let msgs = pose_messages(&pose(), 42, ALL, 5.0).expect("valid pose");
         let MavMessage::VISION_POSITION_ESTIMATE(v) = &msgs[0] else {
