@@ -108,7 +108,7 @@ pub async fn run_with(
     let ros_tokens = if config.output.ros2_announce {
         crate::ros_graph::announce(
             &session,
-            &config.output.ros2_outputs(),
+            &config.output.announced_outputs(),
             &config.output.ros2_qos,
             &config.output.ros_distro,
         )

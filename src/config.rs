@@ -561,6 +561,20 @@ impl OutputConfig {
         v
     }
 
+    /// Every ROS 2 output a ROS graph should see: [`Self::ros2_outputs`] and the
+    /// px4_msgs odometry (a bridge then creates its DDS writer, which PX4's uXRCE-DDS
+    /// agent's reader matches).
+    pub fn announced_outputs(&self) -> Vec<(String, &'static str)> {
+        let mut v = self.ros2_outputs();
+        if self.px4_odometry {
+            v.push((
+                self.px4_odometry_key.clone(),
+                crate::codec::ros::px4::Px4Type::VehicleOdometry.ros2_name(),
+            ));
+        }
+        v
+    }
+
     /// The JSON key prefix with the vehicle name in place.
     pub fn prefix_for(&self, vehicle: &str) -> String {
         self.prefix

@@ -133,6 +133,13 @@ fn struct_json(name: &str, fields: &[FieldDesc]) -> String {
 /// The REP 2011 type hash (`RIHS01_<sha256 hex>`) of a type skyfuse publishes.
 pub fn rihs01(name: &str) -> Option<String> {
     use sha2::{Digest, Sha256};
+    // px4_msgs: the hashes of PX4's own definitions (the 1.16 layout we write).
+    if let Some(t) = crate::codec::ros::px4::Px4Type::from_name(name) {
+        return Some(crate::codec::ros::px4::type_hash(
+            t,
+            crate::codec::ros::px4::Px4Version::V1_16,
+        ));
+    }
     let fields = describe(name)?;
     // Every type it refers to, directly or not, sorted by name.
     let mut refs = std::collections::BTreeSet::new();

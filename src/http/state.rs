@@ -204,7 +204,7 @@ impl AppState {
                 })
             })
             .collect();
-        json!({ "topics": topics, "announced": self.config.output.ros2_announce.then(|| self.config.output.ros2_outputs().into_iter().map(|(k, t)| json!({"key": k, "type": t})).collect::<Vec<_>>()) })
+        json!({ "topics": topics, "announced": self.config.output.ros2_announce.then(|| self.config.output.announced_outputs().into_iter().map(|(k, t)| json!({"key": k, "type": t})).collect::<Vec<_>>()) })
     }
 
     /// Health as published on `<prefix>/health`: sensors and the estimator's verdict.

@@ -199,21 +199,10 @@ const RMW_NODE: &str = "skyfuse";
 
 /// The outputs rmw_zenoh carries: (bridge key, ROS 2 type, RIHS01 hash).
 fn rmw_outputs(cfg: &OutputConfig) -> Vec<(String, &'static str, Option<String>)> {
-    let mut v: Vec<_> = cfg
-        .ros2_outputs()
+    cfg.announced_outputs()
         .into_iter()
         .map(|(key, ty)| (key, ty, crate::ros_graph::rihs01(ty)))
-        .collect();
-    if cfg.px4_odometry {
-        use crate::codec::ros::px4::{type_hash, Px4Type, Px4Version};
-        let ty = Px4Type::VehicleOdometry;
-        v.push((
-            cfg.px4_odometry_key.clone(),
-            ty.ros2_name(),
-            Some(type_hash(ty, Px4Version::V1_16)),
-        ));
-    }
-    v
+        .collect()
 }
 
 impl RmwOutputs {

@@ -109,7 +109,7 @@ pub fn samples(config: &Config, log: &McapLog) -> McapReplay {
     // holds them): never fed back in as inputs.
     let own_outputs: Vec<String> = config
         .output
-        .ros2_outputs()
+        .announced_outputs()
         .into_iter()
         .map(|(k, _)| k.trim_start_matches('/').to_string())
         .collect();
