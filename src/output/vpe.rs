@@ -95,13 +95,15 @@ fn quality(p: &FusedPose, max_std_m: f64) -> i8 {
     q.round() as i8
 }
 
-/// The messages for one output tick. `time_us` is the MAVLink timestamp to send.
-pub fn pose_messages(
-    p: &FusedPose,
-    time_us: u64,
-    set: MessageSet,
-    max_std_m: f64,
-) -> Result<Vec<MavMessage>, VpeError> {
+/// A valid pose's position, velocity (NED) and attitude (body FRD → NED).
+struct Ned {
+    pos: Vector3<f64>,
+    vel: Vector3<f64>,
+    q: UnitQuaternion<f64>,
+}
+
+/// The pose in the autopilot's frames, or why it is not to be sent.
+fn ned(p: &FusedPose) -> Result<Ned, VpeError> {
     if !p.valid {
         return Err(VpeError::Invalid(
             p.invalid_reason
@@ -109,9 +111,21 @@ pub fn pose_messages(
                 .unwrap_or_else(|| "not valid".into()),
         ));
     }
-    let pos = enu_to_ned(p.position);
-    let vel = enu_to_ned(p.velocity);
-    let q = q_enu_flu_to_ned_frd(p.orientation);
+    Ok(Ned {
+        pos: enu_to_ned(p.position),
+        vel: enu_to_ned(p.velocity),
+        q: q_enu_flu_to_ned_frd(p.orientation),
+    })
+}
+
+/// The messages for one output tick. `time_us` is the MAVLink timestamp to send.
+pub fn pose_messages(
+    p: &FusedPose,
+    time_us: u64,
+    set: MessageSet,
+    max_std_m: f64,
+) -> Result<Vec<MavMessage>, VpeError> {
+    let Ned { pos, vel, q } = ned(p)?;
     let (roll, pitch, yaw) = q.euler_angles();
     let cov = upper_triangle(&pose_covariance_ned(p));
     check_all("pose covariance", &cov)?;
@@ -222,16 +236,7 @@ pub fn px4_vehicle_odometry(
     max_std_m: f64,
 ) -> Result<crate::codec::ros::px4::VehicleOdometry, VpeError> {
     use crate::codec::ros::px4;
-    if !p.valid {
-        return Err(VpeError::Invalid(
-            p.invalid_reason
-                .clone()
-                .unwrap_or_else(|| "not valid".into()),
-        ));
-    }
-    let pos = enu_to_ned(p.position);
-    let vel = enu_to_ned(p.velocity);
-    let q = q_enu_flu_to_ned_frd(p.orientation);
+    let Ned { pos, vel, q } = ned(p)?;
     let cov = pose_covariance_ned(p);
     let perm = Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0);
     let vcov = perm * p.velocity_cov * perm.transpose();
