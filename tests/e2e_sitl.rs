@@ -276,3 +276,54 @@ fn sitl_requires_the_key_skyfuse_gave_it() {
         String::from_utf8_lossy(&run.stderr)
     );
 }
+
+/// PX4 v1.16.0's own zenoh module (issue 37), no bridge: PX4 SITL built with it
+/// (`$SKYFUSE_PEERS/px4-zenoh`, the SIH quadcopter on the ground) connects to skyfuse's
+/// Zenoh listener and publishes px4_msgs (XCDR2, its buffer's tail behind each);
+/// skyfuse with `transport = "px4_zenoh"` decodes every message of seven topics and
+/// its heading equals EKF2's (tests/py/sitl/px4_zenoh_sitl.py).
+#[test]
+fn px4_zenoh_module_feeds_skyfuse_without_a_bridge() {
+    let test = "px4_zenoh_module_feeds_skyfuse_without_a_bridge";
+    if skip_requested("peers", test) {
+        return;
+    }
+    let run = peers_dir().join("px4-zenoh/run-sih-quad-zenoh.sh");
+    if !run.is_file() {
+        skipped(
+            test,
+            &format!(
+                "no {} (PX4 v1.16 px4_sitl_zenoh, built by you; set SKYFUSE_PEERS)",
+                run.display()
+            ),
+        );
+        return;
+    }
+    let out = run_py(
+        "sitl/px4_zenoh_sitl.py",
+        &[
+            "--skyfuse",
+            env!("CARGO_BIN_EXE_skyfuse"),
+            "--peers",
+            peers_dir().to_str().expect("peers path"),
+            "--seconds",
+            "25",
+        ],
+    );
+    let v: Value = serde_json::from_str(out.trim()).unwrap_or_else(|e| panic!("{e}: {out}"));
+    assert_eq!(v["ok"], true, "{v}");
+    for (id, input) in v["inputs"].as_object().expect("inputs") {
+        assert!(input["accepted"].as_u64() > Some(10), "{id}: {input}");
+        assert_eq!(input["rejected"], 0, "{id}: {input}");
+    }
+    let heading = v["heading_vs_ekf2_deg"].as_f64().unwrap_or(f64::NAN);
+    assert!(heading.abs() < 1.0, "{v}");
+    let spread = v["skyfuse_horizontal_spread_m"]
+        .as_f64()
+        .unwrap_or(f64::NAN);
+    assert!(spread < 1.0, "standing still: {v}");
+    eprintln!(
+        "PX4 zenoh module → skyfuse: {} (heading vs EKF2 {heading}°, {spread} m spread standing)",
+        v["inputs"]
+    );
+}

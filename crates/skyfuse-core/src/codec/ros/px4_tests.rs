@@ -370,6 +370,31 @@ fn vehicle_odometry_check_refuses_what_the_interface_library_refuses() {
     assert_eq!(m.check(), Ok(()));
 }
 
+/// PX4 SIH's range finder on the ground reads -0.00015 m (a height computed, rounded):
+/// that is 0, not a bad message; a distance well below 0 still is one.
+#[test]
+fn a_distance_rounded_below_zero_on_the_ground_is_zero() {
+    let v = vectors()
+        .into_iter()
+        .find(|v| v.ty == Px4Type::DistanceSensor && v.version == Px4Version::V1_16)
+        .unwrap();
+    // current_distance is the float at body offset 20.
+    let with = |d: f32| {
+        let mut b = v.xcdr1.clone();
+        b[24..28].copy_from_slice(&d.to_le_bytes());
+        decode(Px4Msg::new(Px4Type::DistanceSensor), &b)
+    };
+    let Ok(Some(d)) = with(-0.000_152_587_89) else {
+        panic!("refused")
+    };
+    let SensorData::Range(r) = d.data else {
+        panic!("range")
+    };
+    assert_eq!(r.distance_m, 0.0);
+    let e = with(-0.5).unwrap_err();
+    assert!(e.to_string().contains("negative distance"), "{e}");
+}
+
 #[test]
 fn bad_payloads_are_errors_never_panics() {
     for v in vectors() {

@@ -136,6 +136,9 @@ const LOCAL_FRAME_NED: i64 = 0;
 const LOCAL_FRAME_FRD: i64 = 1;
 const BODY_FRAME_FRD: i64 = 3;
 
+/// How far below 0 a distance may round and still be 0 (on the ground).
+const RANGE_ROUNDING_M: f64 = 0.01;
+
 /// NED → ENU (and FRD → FLU below) as matrices, for covariances.
 fn ned_to_enu_matrix() -> Matrix3<f64> {
     Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0)
@@ -506,9 +509,13 @@ fn imu(c: &ImuCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
 fn range(c: &RangeCols, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
     let t = r.stamp(c.t)?;
     let distance_m = r.finite(c.distance, "distance not finite")?;
-    if distance_m < 0.0 {
-        return Err(r.unusable(c.distance, "negative distance"));
-    }
+    // A height above ground computed, not measured, rounds to just below 0 on the
+    // ground (PX4 SIH: -0.00015 m): that is 0. Anything more negative is no distance.
+    let distance_m = match distance_m {
+        d if d >= 0.0 => d,
+        d if d > -RANGE_ROUNDING_M => 0.0,
+        _ => return Err(r.unusable(c.distance, "negative distance")),
+    };
     let (min, max) = (r.f64(c.min)?, r.f64(c.max)?);
     // Some drivers leave both limits 0: that is "not set", not a zero-width window.
     let limits =
