@@ -7,7 +7,10 @@
 //!
 //! - [`sample`]: the internal sample model (SI units, ENU/FLU, µs) every codec produces.
 //! - [`codec`]: pure functions between bytes and samples, one module per wire format
-//!   (ROS 2 CDR, ROS 1, mavlink-server JSON, raw MAVLink, skyfuse JSON).
+//!   (ROS 2 CDR with PX4's px4_msgs, ROS 1, mavlink-server JSON, raw MAVLink, skyfuse
+//!   JSON).
+//! - [`uorb`]: PX4's uORB topics as rows of named values → samples: one mapping for a
+//!   ULog's rows and for px4_msgs arriving live.
 //! - [`geo`]: WGS-84 geodetic ↔ local ENU.
 //! - [`estimator`]: the deterministic estimator (time passed in, never read).
 //! - [`verdict`]: a sensor's health state and the reasons for it (the words only).
@@ -41,4 +44,5 @@ pub mod shared_data;
 pub mod sim;
 pub mod source_map;
 pub mod sync;
+pub mod uorb;
 pub mod verdict;

@@ -16,8 +16,8 @@
 
 use super::wire::{self, Prim, Wire, WireFields};
 use crate::codec::error::DecodeError;
-use crate::replay::px4log::MessageMapper;
 use crate::sample::{Decoded, SensorKind};
+use crate::uorb::MessageMapper;
 use std::sync::OnceLock;
 
 /// The px4_msgs types skyfuse reads (and VehicleOdometry, which it also writes).

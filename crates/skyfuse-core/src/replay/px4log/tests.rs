@@ -2,7 +2,9 @@
 //! when absent) and constructed files.
 
 use super::*;
+use crate::sample::{GnssFixType, Odometry};
 use crate::some_or_skip;
+use nalgebra::Quaternion;
 use std::collections::BTreeMap;
 
 /// The real indoor flight (CSV export) and the real GPS ULog, in ../shared/data.

@@ -1,10 +1,9 @@
 //! Rows → samples: the column layout of each topic (found once per file by name, PX4
-//! 1.12 – 1.15 variants) and the mapping of one row into a sample, in the conventions
-//! `crate::sample` fixes (NED/FRD in, ENU/FLU out, SI units).
+//! 1.12 – 1.16 variants) and the mapping of one row into a sample.
 
 use super::*;
 
-pub(super) enum Mapper {
+pub(crate) enum Mapper {
     Attitude(AttitudeCols),
     Imu(ImuCols),
     SensorCombined(Vec3Pair),
@@ -23,25 +22,25 @@ pub(super) enum Mapper {
 
 /// vehicle_air_data: the autopilot's barometer (PX4 1.12-1.15 name its temperature
 /// `baro_temp_celcius`, 1.16 `ambient_temperature`).
-pub(super) struct AirDataCols {
+pub(crate) struct AirDataCols {
     t: usize,
     pressure: usize,
     temperature: Option<usize>,
 }
 
 /// A timestamp and up to two vectors (sensor_combined: gyro, accel).
-pub(super) struct Vec3Pair {
+pub(crate) struct Vec3Pair {
     t: usize,
     a: [usize; 3],
     b: Option<[usize; 3]>,
 }
 
-pub(super) struct FlagCol {
+pub(crate) struct FlagCol {
     t: usize,
     flag: usize,
 }
 
-pub(super) struct GpsCols {
+pub(crate) struct GpsCols {
     t: usize,
     /// (lat, lon, alt): 1e-7° and mm (≤ 1.14) or degrees and metres (1.15).
     lat_lon_alt: [usize; 3],
@@ -56,12 +55,12 @@ pub(super) struct GpsCols {
     vdop: usize,
 }
 
-pub(super) struct AttitudeCols {
+pub(crate) struct AttitudeCols {
     t: usize,
     q: [usize; 4],
 }
 
-pub(super) struct ImuCols {
+pub(crate) struct ImuCols {
     t: usize,
     dang: [usize; 3],
     dvel: [usize; 3],
@@ -69,7 +68,7 @@ pub(super) struct ImuCols {
     dvel_dt: usize,
 }
 
-pub(super) struct RangeCols {
+pub(crate) struct RangeCols {
     t: usize,
     distance: usize,
     min: usize,
@@ -79,7 +78,7 @@ pub(super) struct RangeCols {
     orientation: usize,
 }
 
-pub(super) struct FlowCols {
+pub(crate) struct FlowCols {
     t: usize,
     flow: [usize; 2],
     gyro: [usize; 3],
@@ -89,7 +88,7 @@ pub(super) struct FlowCols {
     distance: Option<usize>,
 }
 
-pub(super) struct VioCols {
+pub(crate) struct VioCols {
     t: usize,
     pos: [usize; 3],
     q: [usize; 4],
@@ -110,7 +109,7 @@ pub(super) struct VioCols {
 /// How vehicle_visual_odometry carries its uncertainty (inside a boxed `VioCols`: one
 /// per topic, so the size difference of the variants costs nothing).
 #[allow(clippy::large_enum_variant)]
-pub(super) enum VioCov {
+pub(crate) enum VioCov {
     /// ≤ 1.13: 6×6 upper triangles (pose, velocity).
     Urt { pose: [usize; 21], vel: [usize; 21] },
     /// ≥ 1.14: per-axis variances.
@@ -121,7 +120,7 @@ pub(super) enum VioCov {
     },
 }
 
-pub(super) struct Ekf2Cols {
+pub(crate) struct Ekf2Cols {
     t: usize,
     pos: [usize; 3],
     vel: [usize; 3],
@@ -168,7 +167,7 @@ fn transform_cov6(c: Matrix6<f64>, a: Matrix3<f64>, b: Matrix3<f64>) -> Matrix6<
 
 impl Mapper {
     /// The column the sample's time comes from.
-    pub(super) fn time_column(&self) -> usize {
+    pub(crate) fn time_column(&self) -> usize {
         match self {
             Mapper::Attitude(c) => c.t,
             Mapper::Imu(c) => c.t,
@@ -183,13 +182,13 @@ impl Mapper {
         }
     }
 
-    pub(super) fn new(kind: Kind, file: &Path, header: &[String]) -> Result<Self, Px4LogError> {
+    pub(crate) fn new(kind: Kind, file: &Path, header: &[String]) -> Result<Self, Px4LogError> {
         Self::with_columns(kind, file, header).map(|(m, _)| m)
     }
 
     /// The columns a mapper of `kind` reads from `header` (true at their index): the
     /// rest need not be kept.
-    pub(super) fn columns_read(kind: Kind, file: &Path, header: &[String]) -> Option<Vec<bool>> {
+    pub(crate) fn columns_read(kind: Kind, file: &Path, header: &[String]) -> Option<Vec<bool>> {
         Self::with_columns(kind, file, header)
             .ok()
             .map(|(_, read)| read)
@@ -346,7 +345,7 @@ impl Mapper {
         })
     }
 
-    pub(super) fn map(&self, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
+    pub(crate) fn map(&self, r: &Row<'_>) -> Result<(Micros, SensorData), Px4LogError> {
         match self {
             Mapper::Attitude(c) => attitude(c, r),
             Mapper::Imu(c) => imu(c, r),
