@@ -315,6 +315,8 @@ fn px4_zenoh_module_feeds_skyfuse_without_a_bridge() {
     for (id, input) in v["inputs"].as_object().expect("inputs") {
         assert!(input["accepted"].as_u64() > Some(10), "{id}: {input}");
         assert_eq!(input["rejected"], 0, "{id}: {input}");
+        // Healthy inputs say so, the 1 Hz land detector included.
+        assert_eq!(input["health"], "ok", "{id}: {input}");
     }
     let heading = v["heading_vs_ekf2_deg"].as_f64().unwrap_or(f64::NAN);
     assert!(heading.abs() < 1.0, "{v}");

@@ -83,6 +83,11 @@ pub struct HealthConfig {
     pub estimator_max_std_m: f64,
 }
 
+/// The rate is measured over this much of the newest arrivals, µs ...
+const RATE_WINDOW_US: i64 = 2_000_000;
+/// ... and over at least this many expected periods.
+const RATE_PERIODS: f64 = 2.5;
+
 pub const DEFAULT_CONFIRM_MS: f64 = 300.0;
 pub const DEFAULT_RECOVER_MS: f64 = 3000.0;
 pub const DEFAULT_HOLD_MS: f64 = 500.0;
@@ -336,7 +341,13 @@ impl HealthMonitor {
         };
         h.last_sample_us = Some(t);
         h.arrivals.push_back(t);
-        while h.arrivals.front().is_some_and(|&a| t - a > 2_000_000) {
+        // ~2 s, and at least 2.5 expected periods: a 1 Hz input keeps two arrivals.
+        let window = if h.expected_rate_hz > 0.0 {
+            (RATE_PERIODS * 1e6 / h.expected_rate_hz).max(RATE_WINDOW_US as f64) as i64
+        } else {
+            RATE_WINDOW_US
+        };
+        while h.arrivals.front().is_some_and(|&a| t - a > window) {
             h.arrivals.pop_front();
         }
         let mut found = checks::check_sample(cfg, &mut h.checks, &s.data, t);
@@ -557,10 +568,21 @@ impl SensorHealth {
         c.state = c.state.max(o.state);
     }
 
-    /// Measured rate over the last ~2 s, Hz.
+    /// Measured rate over the last ~2 s (at least 2.5 expected periods), Hz: the
+    /// arrivals' own spacing, lower once the time since the last one outgrows it. (The
+    /// time since the first arrival alone counts a partial period: a 1 Hz input read
+    /// 0.9 s after a sample measured 0.5 Hz.)
     pub fn rate_hz(&self, t: i64) -> f64 {
-        match (self.arrivals.front(), self.arrivals.len()) {
-            (Some(&first), n) if n >= 2 && t > first => (n - 1) as f64 * 1e6 / (t - first) as f64,
+        match (
+            self.arrivals.front(),
+            self.arrivals.back(),
+            self.arrivals.len(),
+        ) {
+            (Some(&first), Some(&last), n) if n >= 2 && last > first => {
+                let spaced = (n - 1) as f64 * 1e6 / (last - first) as f64;
+                let with_silence = n as f64 * 1e6 / (t.max(last) - first) as f64;
+                spaced.min(with_silence)
+            }
             _ => 0.0,
         }
     }

@@ -303,3 +303,49 @@ fn a_source_is_failed_by_its_innovations_only_when_most_samples_are_over_the_gat
         s.reasons
     );
 }
+
+/// A 1 Hz input at 1 Hz is never "rate low", whenever it is looked at between samples
+/// (PX4's land detector: it read 0.5 Hz 0.9 s after a sample); at a third of its rate
+/// it is.
+#[test]
+fn a_slow_input_at_its_rate_is_not_rate_low_between_samples() {
+    let mut m = HealthMonitor::new(
+        HealthConfig::default(),
+        &[InputSpec::new("gps", SensorKind::Gnss, 1.0)],
+    );
+    let mut worst = HealthState::Ok;
+    for k in 0..20 {
+        let t = k * 1_000_000;
+        m.on_sample(&fix(0.0, GnssFixType::Fix3d), t);
+        for dt in [0, 300_000, 600_000, 900_000, 990_000] {
+            m.evaluate(t + dt);
+            let s = m
+                .sensor("gps")
+                .map(|s| s.state)
+                .unwrap_or(HealthState::NoData);
+            worst = worst.max(s);
+        }
+        let h = m.sensors.get("gps").expect("gps");
+        if k > 0 {
+            assert!(
+                h.rate_hz(t + 900_000) > 0.95,
+                "{} Hz",
+                h.rate_hz(t + 900_000)
+            );
+        }
+    }
+    assert_eq!(worst, HealthState::Ok);
+    let mut m = HealthMonitor::new(
+        HealthConfig::default(),
+        &[InputSpec::new("gps", SensorKind::Gnss, 3.0)],
+    );
+    for k in 0..20 {
+        let t = k * 1_000_000;
+        m.on_sample(&fix(0.0, GnssFixType::Fix3d), t);
+        for dt in (0..10).map(|i| i * 100_000) {
+            m.evaluate(t + dt);
+        }
+    }
+    let s = m.sensor("gps").expect("gps");
+    assert_eq!(s.state, HealthState::Degraded, "{s:?}");
+}
