@@ -19,6 +19,10 @@ use crate::source_map::SourceMap;
 use nalgebra::{Matrix3, Vector3};
 use std::collections::BTreeMap;
 
+/// A source counts as used for at most this long after its last sample, µs, however
+/// slow it is.
+const MAX_USED_GAP_US: i64 = 10_000_000;
+
 /// Read-only context of one processing step.
 pub(crate) struct Ctx<'a> {
     pub cfg: &'a EstimatorConfig,
@@ -203,7 +207,7 @@ impl Core {
     pub fn mark_used(&mut self, t: i64, source: &str) {
         let st = self.stat(source);
         st.last_time_us = Some(t);
-        st.last_fused_us = Some(t);
+        st.fused(t);
         st.accepted += 1;
     }
 
@@ -211,7 +215,7 @@ impl Core {
         let st = self.stat(source);
         st.kind = kind;
         st.last_time_us = Some(t);
-        st.last_fused_us = Some(t);
+        st.fused(t);
         st.accepted += 1;
         self.aided(t, kind);
     }
@@ -245,7 +249,7 @@ impl Core {
         }
         if out.accepted {
             st.accepted += 1;
-            st.last_fused_us = Some(t);
+            st.fused(t);
             if AIDING.contains(&kind) {
                 self.aided(t, kind);
             }
@@ -823,7 +827,15 @@ impl Core {
         let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
         self.stats
             .iter()
-            .filter(move |(_, st)| st.last_fused_us.is_some_and(|f| t - f <= timeout))
+            .filter(move |(_, st)| {
+                // A slow source (a 1 Hz HEARTBEAT) counts as used between its samples.
+                let own = match (st.prev_fused_us, st.last_fused_us) {
+                    (Some(p), Some(l)) => (l - p).saturating_mul(5) / 2,
+                    _ => 0,
+                };
+                st.last_fused_us
+                    .is_some_and(|f| t - f <= timeout.max(own.min(MAX_USED_GAP_US)))
+            })
             .map(|(s, _)| s)
     }
 

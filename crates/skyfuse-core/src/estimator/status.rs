@@ -128,6 +128,10 @@ pub struct SourceStatus {
     pub kind: &'static str,
     pub last_time_us: Option<i64>,
     pub last_fused_us: Option<i64>,
+    /// The fusion before the last: the source's own interval, for how long it counts
+    /// as used (a 1 Hz HEARTBEAT is used between its beats).
+    #[serde(skip)]
+    pub prev_fused_us: Option<i64>,
     pub innovation: Vec<f64>,
     pub innovation_var: Vec<f64>,
     pub test_ratio: f64,
@@ -146,6 +150,14 @@ pub struct SourceStatus {
 }
 
 impl SourceStatus {
+    /// Fused at `t`.
+    pub fn fused(&mut self, t: i64) {
+        if self.last_fused_us != Some(t) {
+            self.prev_fused_us = self.last_fused_us;
+        }
+        self.last_fused_us = Some(t);
+    }
+
     /// The innovation and its variances of `out`, copied into the vectors this status
     /// already has (no allocation once they have room for three rows).
     pub(super) fn set_innovation(&mut self, out: &super::ekf::UpdateOutcome) {

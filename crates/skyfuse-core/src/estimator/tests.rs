@@ -1103,3 +1103,49 @@ fn an_imu_too_slow_to_integrate_is_refused() {
         assert_eq!(est.core.imu.last.is_some(), !refused, "{period_us} µs");
     }
 }
+
+/// A 1 Hz source (the autopilot's HEARTBEAT armed state) is used between its samples:
+/// the list of sources does not drop and re-add it every second (the PX4 flights
+/// logged a source switch a second for it).
+#[test]
+fn a_1_hz_source_stays_in_the_used_list_between_its_samples() {
+    let mut est = Estimator::new(flow_range_cfg());
+    let hover = |_t: i64| Seen {
+        roll: 0.0,
+        range: 1.5,
+        vel: Vector2::zeros(),
+        flow_quality: 200,
+    };
+    let mut switches = Vec::new();
+    // Every 1.2 s: a HEARTBEAT a little late each time, past the 1 s aiding timeout.
+    for k in 0..20i64 {
+        let t = k * 1_200_000;
+        let mut events = flow_range_vehicle(&mut est, t, t + 1_180_000, hover, None);
+        events.extend(est.process(&sample_at(
+            "armed",
+            t + 1_190_000,
+            SensorData::VehicleState(VehicleState {
+                armed: Some(true),
+                landed: None,
+            }),
+        )));
+        for e in events {
+            if let Event::SourceSwitch(crate::event::SourceSwitch::Fused {
+                added, removed, ..
+            }) = &e.what
+            {
+                if added.iter().chain(removed).any(|s| s == "armed") {
+                    switches.push((t, added.clone(), removed.clone()));
+                }
+            }
+        }
+    }
+    // Its interval is known from its second sample on; from then it is never removed
+    // (without it: removed and added again every cycle).
+    let later: Vec<_> = switches.iter().filter(|s| s.0 >= 2_400_000).collect();
+    assert!(
+        later.iter().all(|s| s.2.is_empty()) && later.len() <= 1,
+        "{switches:?}"
+    );
+    assert!(switches.len() <= 3, "{switches:?}");
+}
