@@ -112,7 +112,15 @@ pub struct TickBuilder {
     last_tick_us: Option<i64>,
     /// Newest point already sent per (topic, source).
     sent: BTreeMap<(DebugTopic, String), i64>,
+    /// Per position (topic, source): the newest point's time and the ticks it went in.
+    positions: BTreeMap<(DebugTopic, String), (i64, u32)>,
 }
+
+/// A source's newest position goes out in this many ticks (300 ms at 50 Hz), not only
+/// the one after it is new: a client slower than the ticks skips most of them, and a
+/// 10 Hz GPS point that fell in skipped ticks run after run (the phases line up for a
+/// whole session) left a page's GPS line cut in 7 places.
+const POSITION_REPEAT_TICKS: u32 = 15;
 
 impl TickBuilder {
     /// A tick if one is due at host time `t` (the estimator's, mapped).
@@ -135,8 +143,15 @@ impl TickBuilder {
         };
         let mut sources = BTreeMap::new();
         for topic in DebugTopic::POSITIONS {
-            if let Some((src, v)) = fresh(topic) {
-                sources.insert(src.to_string(), v);
+            let Some(p) = debug.get(&topic) else { continue };
+            let key = (topic, p.source.clone());
+            let entry = self.positions.entry(key).or_insert((i64::MIN, 0));
+            if p.time_us > entry.0 {
+                *entry = (p.time_us, 0);
+            }
+            if entry.1 < POSITION_REPEAT_TICKS {
+                entry.1 += 1;
+                sources.insert(p.source.clone(), p.value);
             }
         }
         let mut deltas = BTreeMap::new();

@@ -1065,6 +1065,8 @@
     network: () => state.network.map((k) => k.key),
     events: () => state.events.map((e) => e.message || '').reverse(),
     get frames() { return state.frames; },
+    // Frames the server dropped for this page (a slow page loses frames by design, and says so).
+    get dropped() { return Math.max(state.dropped, state.droppedTotal); },
     get drawMs() { return state.drawMs; }, // duration of the last redraw (ms)
     get eventCount() { return state.eventCount; }, // events received since load (snapshot ones included)
     get paused() { return state.paused; },
