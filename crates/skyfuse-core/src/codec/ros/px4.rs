@@ -588,6 +588,19 @@ pub fn fields(ty: Px4Type, version: Px4Version) -> &'static [Field] {
     }
 }
 
+/// The columns (in [`header`] order) of field `name`, found from the table: no names
+/// built per message.
+fn columns(fields: &[Field], name: &str) -> Option<std::ops::Range<usize>> {
+    let mut start = 0;
+    for f in fields {
+        if f.name == name {
+            return Some(start..start + f.n);
+        }
+        start += f.n;
+    }
+    None
+}
+
 /// Column names as a ULog has them: `q[0]` ... for arrays.
 pub fn header(fields: &[Field]) -> Vec<String> {
     fields
@@ -867,23 +880,21 @@ pub fn decode(msg: Px4Msg, payload: &[u8]) -> Result<Option<Decoded>, DecodeErro
     let (version, mut values) = read_values(msg, payload)?;
     if msg.ty == Px4Type::SensorOpticalFlow {
         // The log mapping reads NaN as "not there"; this message has flags instead.
-        let h = header(SENSOR_OPTICAL_FLOW);
-        let at = |name: &str| h.iter().position(|n| n == name);
-        let clear_unless = |values: &mut Vec<f64>, flag: &str, cols: &[&str]| {
-            if at(flag).and_then(|i| values.get(i)) == Some(&0.0) {
-                for c in cols {
-                    if let Some(v) = at(c).and_then(|i| values.get_mut(i)) {
-                        *v = f64::NAN;
-                    }
+        let clear_unless = |values: &mut [f64], flag: &str, field: &str| {
+            let (Some(f), Some(cols)) = (
+                columns(SENSOR_OPTICAL_FLOW, flag),
+                columns(SENSOR_OPTICAL_FLOW, field),
+            ) else {
+                return;
+            };
+            if values.get(f.start) == Some(&0.0) {
+                for v in values.get_mut(cols).into_iter().flatten() {
+                    *v = f64::NAN;
                 }
             }
         };
-        clear_unless(
-            &mut values,
-            "delta_angle_available",
-            &["delta_angle[0]", "delta_angle[1]", "delta_angle[2]"],
-        );
-        clear_unless(&mut values, "distance_available", &["distance_m"]);
+        clear_unless(&mut values, "delta_angle_available", "delta_angle");
+        clear_unless(&mut values, "distance_available", "distance_m");
     }
     let Some(m) = mapper(msg.ty, version) else {
         return Ok(None);
