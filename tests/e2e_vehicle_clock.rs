@@ -130,8 +130,9 @@ fn a_vehicle_clock_at_five_times_real_time_is_fused_on() {
         on.t265_ok,
         on.polls
     );
-    // 30 Hz of the vehicle's time, stamped on it.
-    assert!(vpe_rate > 100.0, "{vpe_rate} VPE a host second");
+    // 30 Hz of the vehicle's time (150 a host second), stamped on it: at least half
+    // of that on a loaded machine, and in any case far above the host clock's 30.
+    assert!(vpe_rate > 75.0, "{vpe_rate} VPE a host second");
     assert!(
         (4.5..5.5).contains(&slope),
         "usec runs at {slope} s per host s"
@@ -152,5 +153,8 @@ fn a_vehicle_clock_at_five_times_real_time_is_fused_on() {
         "on the host's clock the T265 should disagree: {:?}",
         off.t265_ratios
     );
-    assert!((20.0..45.0).contains(&vpe_rate_off), "{vpe_rate_off}");
+    // At most the host clock's 30 Hz (with slack): not the vehicle's 150. How many of
+    // those are valid, and so sent, depends on how wrong the host clock makes the
+    // filter and on the machine's load, so there is no lower bound.
+    assert!(vpe_rate_off < 45.0, "{vpe_rate_off} VPE a host second");
 }

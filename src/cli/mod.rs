@@ -710,11 +710,11 @@ async fn serve(c: Config, what: Serve) -> Result<(), String> {
         "starting: waiting for the Zenoh session ({:?} mode, connect {:?})\n",
         c.zenoh.mode, c.zenoh.connect
     );
-    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-    let answering = tokio::spawn(answer_while_starting(http, waiting, stopped));
+    let answering = crate::http::starting::StartingResponder::start(http, waiting)
+        .map_err(|e| format!("the HTTP port while starting: {e}"))?;
     let opened = open_zenoh(&c.zenoh, &mut shutdown).await;
-    let _ = stop.send(());
     let http = answering
+        .finish()
         .await
         .map_err(|e| format!("the HTTP port while starting: {e}"))?;
     let Some(zenoh) = opened? else {
@@ -738,52 +738,13 @@ async fn open_zenoh(
     if cfg.mode == ZenohMode::Client {
         tracing::info!(connect = ?cfg.connect, "connecting to the Zenoh router (retrying until it answers)");
     }
-    // Zenoh's open blocks its thread while it retries, so it gets a worker of its own
-    // and this thread stays free to see the signal.
-    let cfg = cfg.clone();
-    let open = tokio::spawn(async move { zenoh_in::open_session(&cfg).await });
+    // The open runs on a thread of its own (see `zenoh_in::open_session`), so this
+    // task stays free to see the signal.
     tokio::select! {
-        joined = open => match joined {
-            Ok(session) => session.map(Some).map_err(|e| e.to_string()),
-            Err(e) => Err(format!("opening the Zenoh session: {e}")),
-        },
+        session = zenoh_in::open_session(cfg) => session.map(Some).map_err(|e| e.to_string()),
         _ = shutdown => {
             tracing::info!("stopped before the Zenoh session opened");
             Ok(None)
-        }
-    }
-}
-
-/// Answers every HTTP request on `listener` with 503 and `text` until `stop`, then
-/// gives the listener back for the service.
-async fn answer_while_starting(
-    listener: tokio::net::TcpListener,
-    text: String,
-    mut stop: tokio::sync::oneshot::Receiver<()>,
-) -> tokio::net::TcpListener {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let answer = format!(
-        "HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: {}\r\nConnection: close\r\nRetry-After: 1\r\n\r\n{text}",
-        text.len()
-    );
-    loop {
-        tokio::select! {
-            _ = &mut stop => return listener,
-            accepted = listener.accept() => {
-                let Ok((mut conn, _)) = accepted else { continue };
-                let answer = answer.clone();
-                tokio::spawn(async move {
-                    // Read what the request sent first (the answer is the same for all).
-                    let mut buf = [0u8; 2048];
-                    let _ = tokio::time::timeout(
-                        std::time::Duration::from_millis(200),
-                        conn.read(&mut buf),
-                    )
-                    .await;
-                    let _ = conn.write_all(answer.as_bytes()).await;
-                    let _ = conn.shutdown().await;
-                });
-            }
         }
     }
 }

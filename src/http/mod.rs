@@ -19,6 +19,7 @@ use std::time::Duration;
 pub(crate) mod assets;
 pub mod metrics;
 mod state;
+pub mod starting;
 pub mod tls;
 
 pub use state::{AppState, SensorView, Status};

@@ -88,6 +88,8 @@ struct InputHistory {
     last_error: Option<String>,
     last_error_us: Option<Micros>,
     last_arrival_us: Option<Micros>,
+    /// The first payload's arrival (the announcement grace counts from it).
+    first_arrival_us: Option<Micros>,
     stamps: stamps::StampTracker,
     /// The last clock restart, as text.
     last_clock_restart: Option<String>,
@@ -173,6 +175,11 @@ pub struct IngestHealth {
 // The same states and reasons as the sensor checks (crate::health), a subset of them.
 pub use crate::health::{HealthState, Reason};
 
+/// How long after an input's first payload a missing type announcement (`type =
+/// "auto"`) is waited for before its samples are refused, µs. A bridge's token follows
+/// its first sample by milliseconds when it does not precede it.
+const ANNOUNCEMENT_GRACE_US: Micros = 2_000_000;
+
 /// Recent rejections make a stream `degraded` for this long.
 const RECENT_ERROR_MS: f64 = 5000.0;
 /// Below this fraction of the expected rate a stream is `degraded`.
@@ -190,6 +197,14 @@ impl InputState {
 
     fn history(&self) -> std::sync::MutexGuard<'_, InputHistory> {
         crate::sync::lock(&self.history)
+    }
+
+    /// Within [`ANNOUNCEMENT_GRACE_US`] of this input's first payload: a type still
+    /// unannounced may yet be (the bridge's token is on its way).
+    fn awaiting_announcement(&self, arrival_us: Micros) -> bool {
+        let mut h = self.history();
+        let first = *h.first_arrival_us.get_or_insert(arrival_us);
+        arrival_us - first < ANNOUNCEMENT_GRACE_US
     }
 
     pub fn status(&self, now: Micros) -> InputStatus {
@@ -440,6 +455,13 @@ impl Ingest {
                         return Vec::new();
                     }
                 },
+                // A bridge sends its first sample and its liveliness token at nearly
+                // the same moment, in either order: a sample that beats the
+                // announcement is set aside (counted as ignored), not a fault.
+                (true, _, None) if input.awaiting_announcement(arrival_us) => {
+                    c.ignored.fetch_add(1, Relaxed);
+                    return Vec::new();
+                }
                 (true, _, None) => {
                     input.reject(
                         Rejection::WrongType(format!(

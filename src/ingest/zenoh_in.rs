@@ -97,7 +97,24 @@ pub fn zenoh_config(cfg: &ZenohConfig) -> Result<zenoh::Config, ZenohError> {
 
 pub async fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, ZenohError> {
     let z = zenoh_config(cfg)?;
-    zenoh::open(z).await.map_err(|e| ZenohError::Open {
+    // Zenoh's open blocks the thread it runs on for as long as it retries (a client
+    // waiting for its router: indefinitely), even awaited: its future is ready-made
+    // from a blocking call. On a runtime worker that starves every task queued behind
+    // it (on two cores, the HTTP port went unanswered), so it runs on a thread of its
+    // own, left to finish on its own if the caller stops waiting.
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    let spawned = std::thread::Builder::new()
+        .name("zenoh-open".into())
+        .spawn(move || {
+            let _ = tx.send(zenoh::Wait::wait(zenoh::open(z)));
+        });
+    let opened = match spawned {
+        Ok(_) => rx.await.unwrap_or_else(|_| {
+            Err(zenoh::Error::from("the thread opening the session ended without an answer"))
+        }),
+        Err(e) => Err(zenoh::Error::from(format!("cannot start a thread to open the session: {e}"))),
+    };
+    opened.map_err(|e| ZenohError::Open {
         mode: cfg.mode,
         listen: cfg.listen.clone(),
         connect: cfg.connect.clone(),
