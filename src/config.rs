@@ -64,6 +64,10 @@ pub struct Config {
     pub inputs: Vec<InputConfig>,
     #[serde(default)]
     pub estimator: crate::estimator::EstimatorConfig,
+    /// `[integrity]`: protection levels and alert limits (the estimator's; kept in
+    /// `estimator.integrity` once loaded).
+    #[serde(default)]
+    pub integrity: crate::estimator::IntegrityConfig,
     #[serde(default)]
     pub output: OutputConfig,
     #[serde(default)]
@@ -850,6 +854,7 @@ impl Config {
                 input.auto_type = true;
             }
         }
+        cfg.estimator.integrity = cfg.integrity.clone();
         cfg.validate().map_err(|message| ConfigError::Invalid {
             origin: origin.to_string(),
             message,
@@ -1028,6 +1033,7 @@ impl Config {
         self.estimator
             .validate()
             .map_err(|e| format!("estimator: {e}"))?;
+        self.integrity.validate()?;
         self.health.validate()?;
         for e in &self.mavlink.endpoints {
             Endpoint::parse_with_messages(e).map_err(|m| format!("mavlink.endpoints: {m}"))?;

@@ -205,6 +205,7 @@ mod tests {
             valid: true,
             invalid_reason: None,
             origin: None,
+            protection: Default::default(),
         });
         let v = serde_json::to_value(&pose).expect("pose");
         for k in [

@@ -141,6 +141,18 @@ pub enum Command {
         /// List the scenarios and exit.
         #[arg(long)]
         list: bool,
+        /// Offline: fly this many randomised vehicles and flights (seeded by `--seed`)
+        /// through the configuration and print the integrity table by scenario family;
+        /// with `--out`, each run's figures as `runs.jsonl` and the table as
+        /// `families.json`.
+        #[arg(long, value_name = "N", conflicts_with_all = ["ulog", "dataflash"])]
+        monte_carlo: Option<u64>,
+        /// With `--monte-carlo`: start at this draw (draws are numbered from 0).
+        #[arg(long, default_value_t = 0, value_name = "I", requires = "monte_carlo")]
+        first: u64,
+        /// With `--monte-carlo`: parallel runs (default: the cores).
+        #[arg(long, value_name = "J", requires = "monte_carlo")]
+        jobs: Option<usize>,
     },
     /// Replay a recorded flight (a PX4 ULog, a directory of its CSV export by pyulog's
     /// ulog2csv, an ArduPilot DataFlash log, a MAVLink telemetry log, a skyfuse
@@ -573,6 +585,18 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             Ok(())
         }
         Command::Sim {
+            config,
+            seed,
+            monte_carlo: Some(n),
+            first,
+            jobs,
+            out,
+            ..
+        } => {
+            let c = Config::load(config.as_deref(), env_vars()).map_err(|e| e.to_string())?;
+            monte_carlo::run(&c, seed, first, n, jobs, out.as_deref())
+        }
+        Command::Sim {
             seed,
             duration,
             scenario,
@@ -894,6 +918,7 @@ fn random_token() -> String {
 
 mod discover;
 mod eval;
+mod monte_carlo;
 mod runs;
 use runs::{offline_sims, parse_window, replay, scenario_at, sim_log, SimLog};
 

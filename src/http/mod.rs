@@ -18,8 +18,8 @@ use std::time::Duration;
 
 pub(crate) mod assets;
 pub mod metrics;
-mod state;
 pub mod starting;
+mod state;
 pub mod tls;
 
 pub use state::{AppState, SensorView, Status};

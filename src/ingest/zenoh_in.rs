@@ -110,9 +110,13 @@ pub async fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, ZenohErro
         });
     let opened = match spawned {
         Ok(_) => rx.await.unwrap_or_else(|_| {
-            Err(zenoh::Error::from("the thread opening the session ended without an answer"))
+            Err(zenoh::Error::from(
+                "the thread opening the session ended without an answer",
+            ))
         }),
-        Err(e) => Err(zenoh::Error::from(format!("cannot start a thread to open the session: {e}"))),
+        Err(e) => Err(zenoh::Error::from(format!(
+            "cannot start a thread to open the session: {e}"
+        ))),
     };
     opened.map_err(|e| ZenohError::Open {
         mode: cfg.mode,

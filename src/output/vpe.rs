@@ -378,6 +378,7 @@ mod tests {
             valid: true,
             invalid_reason: None,
             origin: None,
+            protection: Default::default(),
         }
     }
 

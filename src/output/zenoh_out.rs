@@ -503,6 +503,7 @@ mod tests {
             valid: true,
             invalid_reason: None,
             origin: None,
+            protection: Default::default(),
         };
         let bytes = pose_stamped(&p, "map").expect("encodes").to_cdr();
         let back = PoseStamped::from_cdr(&bytes).expect("decodes");

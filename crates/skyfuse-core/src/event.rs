@@ -139,6 +139,19 @@ pub enum Event {
     /// A simulated fault started or ended (demo and `sim` only).
     FaultInjected,
     FaultCleared,
+    /// The integrity monitor excluded a source: the estimate with it departed from the
+    /// one without it by `separation` (ENU, m) against `sigma`, `test_ratio` times the
+    /// threshold; the solution without it is the estimate from here on.
+    IntegrityExclusion {
+        separation: [f64; 3],
+        sigma: [f64; 3],
+        test_ratio: f64,
+        reset_counter: u8,
+    },
+    /// An excluded source agreed again and is fused again.
+    IntegrityReadmit {
+        excluded_s: f64,
+    },
 }
 
 /// The three ways the pose is reset.
@@ -155,6 +168,14 @@ pub enum Reset {
     Origin { shift: [f64; 3], reset_counter: u8 },
     /// The filter re-initialised after going non-finite.
     Restart { reset_counter: u8 },
+    /// Every measurement of the only sources of a channel was refused for
+    /// `rejected_s`: the filter was reset to the newest one (EKF2 and EKF3 do the same),
+    /// rather than locking them out for good with its own drift.
+    Rejected {
+        reset_counter: u8,
+        rejected_s: f64,
+        jump_m: f64,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -212,7 +233,7 @@ pub enum ConstraintChange {
 
 impl Event {
     /// Every kind, as `kind` names it (web/PROTOCOL.md lists these).
-    pub const KINDS: [&'static str; 21] = [
+    pub const KINDS: [&'static str; 23] = [
         "initialised",
         "origin_set",
         "reset",
@@ -234,6 +255,8 @@ impl Event {
         "zenoh_link",
         "fault_injected",
         "fault_cleared",
+        "integrity_exclusion",
+        "integrity_readmit",
     ];
 
     pub fn kind(&self) -> &'static str {
@@ -257,6 +280,8 @@ impl Event {
             Event::ClockRestart { .. } => "clock_restart",
             Event::TimeBase { .. } => "time_base",
             Event::ZenohLink => "zenoh_link",
+            Event::IntegrityExclusion { .. } => "integrity_exclusion",
+            Event::IntegrityReadmit { .. } => "integrity_readmit",
             Event::FaultInjected => "fault_injected",
             Event::FaultCleared => "fault_cleared",
         }
@@ -365,6 +390,18 @@ mod tests {
             Event::ZenohLink,
             Event::FaultInjected,
             Event::FaultCleared,
+            Event::IntegrityExclusion {
+                separation: [0.1, 4.0, 0.0],
+                sigma: [0.5, 0.5, 0.2],
+                test_ratio: 1.6,
+                reset_counter: 2,
+            },
+            Event::IntegrityReadmit { excluded_s: 12.0 },
+            Event::Reset(Reset::Rejected {
+                reset_counter: 3,
+                rejected_s: 3.1,
+                jump_m: 4.2,
+            }),
         ]
     }
 

@@ -84,11 +84,16 @@ impl Fusion {
         for tr in self.health.evaluate(now_us) {
             events.push(transition_event(&tr));
             if tr.sensor != crate::health::ESTIMATOR_ID {
-                let reason = tr.reasons.first().map(|r| r.code).unwrap_or(tr.to.as_str());
-                events.extend(
-                    self.est
-                        .set_source_usable(&tr.sensor, tr.to.usable(), reason),
-                );
+                let reason = tr
+                    .reasons
+                    .iter()
+                    .find(|r| !crate::health::INNOVATION_CODES.contains(&r.code))
+                    .map(|r| r.code)
+                    .unwrap_or(tr.to.as_str());
+                // See `HealthMonitor::fusable`: what the health says of a source's
+                // disagreement with the estimate is shown, not acted on here.
+                let fusable = self.health.fusable(&tr.sensor);
+                events.extend(self.est.set_source_usable(&tr.sensor, fusable, reason));
             }
         }
         events

@@ -6,7 +6,9 @@
 //! Output files are a pure function of the input: replaying twice gives byte-identical
 //! files (no wall-clock time, no hash-map ordering, fixed number formatting).
 
-use crate::estimator::{DebugTopic, Estimator, EstimatorConfig, EstimatorEvent, Event, Mode};
+use crate::estimator::{
+    DebugTopic, Estimator, EstimatorConfig, EstimatorEvent, Event, Mode, Protection,
+};
 use crate::eval::{evo_ape, ApeOptions, ApeStats, Trajectory};
 use crate::fusion::{Fusion, InputList, InputSpec};
 use crate::geo::LocalEnu;
@@ -17,6 +19,7 @@ use crate::sim::truth::truth_of;
 use crate::source_map::SourceMap;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use serde::Serialize;
+use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
@@ -61,6 +64,8 @@ pub struct Recorder {
     pub fused: Trajectory,
     /// The position covariance each of them was sent with (ENU, m²).
     pub fused_cov: Vec<Matrix3<f64>>,
+    /// The protection levels each of them was sent with.
+    pub fused_pl: Vec<Protection>,
     /// Every pose, valid or not (`fused_all.tum`).
     pub fused_all: Trajectory,
     /// Validity of each recorded pose: (t, valid).
@@ -234,6 +239,7 @@ impl Recorder {
             push(&mut self.fused, t, pose.position, pose.orientation);
             if self.fused.t.len() > before {
                 self.fused_cov.push(pose.position_cov);
+                self.fused_pl.push(pose.protection);
             }
         }
     }
@@ -345,6 +351,16 @@ pub struct Consistency {
     pub worst_axis: usize,
     /// Mean position NEES, eᵀ Σ⁻¹ e (3 expected for a consistent filter).
     pub nees_mean: f64,
+    /// Per axis, the mean of e² / σ² (1 expected): below 1/3 the σ sent is more than
+    /// √3 times too large, above 3 too small.
+    pub nees_axis: [f64; 3],
+    /// Valid poses whose true error is beyond the protection level they were sent with
+    /// (horizontal or vertical): integrity failures, the headline figure.
+    pub integrity_failures: usize,
+    /// The largest error over protection level of any valid pose, horizontal or
+    /// vertical (below 1: every pose inside its bound), and when (s into the run).
+    pub worst_pl_ratio: f64,
+    pub worst_pl_t: f64,
 }
 
 impl Consistency {
@@ -363,6 +379,7 @@ fn consistency(
     reference_cov: Option<&[Matrix3<f64>]>,
     estimate: &Trajectory,
     cov: &[Matrix3<f64>],
+    pl: &[Protection],
     max_diff_s: f64,
     align: bool,
 ) -> Option<Consistency> {
@@ -390,6 +407,8 @@ fn consistency(
     };
     let mut within = [0usize; 3];
     let (mut beyond, mut worst, mut worst_t, mut worst_axis, mut nees) = (0, 0.0f64, 0.0, 0, 0.0);
+    let mut nees_axis = [0.0; 3];
+    let (mut failures, mut worst_pl, mut worst_pl_t) = (0, 0.0f64, 0.0);
     // Registered at the first matched pose, every later pose inherits that pose's own
     // error: its covariance counts too (the correlation between the two, which would
     // lessen it, is not known here).
@@ -403,8 +422,24 @@ fn consistency(
             .copied()
             .unwrap_or_default();
         let c = rot.rotation * (cov[i] + registration) * rot.rotation.transpose() + own;
+        // The protection level bounds the error in the estimate's own frame (the one
+        // it was sent in); a registration's error is the estimate's at that pose.
+        if let Some(p) = pl.get(i) {
+            let e_own = rot.rotation.transpose() * err;
+            let reg = pl.get(ie[0]).filter(|_| align);
+            let (h, v) = (
+                p.horizontal_m + reg.map_or(0.0, |r| r.horizontal_m),
+                p.vertical_m + reg.map_or(0.0, |r| r.vertical_m),
+            );
+            let ratio = (e_own.xy().norm() / h.max(1e-9)).max(e_own.z.abs() / v.max(1e-9));
+            failures += usize::from(ratio > 1.0);
+            if ratio > worst_pl {
+                (worst_pl, worst_pl_t) = (ratio, e.t[k]);
+            }
+        }
         let mut out = false;
         for a in 0..3 {
+            nees_axis[a] += err[a] * err[a] / c[(a, a)].max(1e-12);
             let ratio = err[a].abs() / c[(a, a)].max(1e-12).sqrt();
             if ratio <= 3.0 {
                 within[a] += 1;
@@ -429,6 +464,10 @@ fn consistency(
         worst_t,
         worst_axis,
         nees_mean: nees / n,
+        nees_axis: nees_axis.map(|x| x / n),
+        integrity_failures: failures,
+        worst_pl_ratio: worst_pl,
+        worst_pl_t,
     })
 }
 
@@ -488,6 +527,9 @@ fn write_file(dir: &Path, name: &str, text: &str) -> Result<String, OfflineError
 pub enum Reference<'a> {
     /// The simulator's truth, evaluated at each trajectory's own times.
     Truth(&'a dyn Fn(f64) -> (Vector3<f64>, UnitQuaternion<f64>)),
+    /// The same, for an estimate in a frame of its own (no GNSS: its start, turned by
+    /// the autopilot's heading then): registered at the first valid pose to be scored.
+    TruthInOwnFrame(&'a dyn Fn(f64) -> (Vector3<f64>, UnitQuaternion<f64>)),
     /// One of the recorded sources (e.g. `vio`), associated by time (`max_diff_s`).
     Source { name: &'a str, max_diff_s: f64 },
 }
@@ -615,7 +657,7 @@ fn finish(
         source,
     })?;
     let mut files = Vec::new();
-    if let Reference::Truth(truth) = &reference {
+    if let Reference::Truth(truth) | Reference::TruthInOwnFrame(truth) = &reference {
         let t = truth_at(*truth, &rec.fused.t);
         files.push(write_file(out, "truth.tum", &tum("truth", &t)?)?);
     }
@@ -637,11 +679,44 @@ fn finish(
     }
     files.push(write_file(out, "events.jsonl", &events)?);
 
+    let (scores, consistency) = score(rec, &reference, window);
+    files.push("summary.json".into());
+    let summary = Summary {
+        input: input.name,
+        mode: input.mode.as_str(),
+        samples: input.samples,
+        fused_poses: rec.fused.t.len(),
+        events: rec.events.len(),
+        reference: match reference {
+            Reference::Truth(_) | Reference::TruthInOwnFrame(_) => "truth".into(),
+            Reference::Source { name, .. } => name.into(),
+        },
+        window_s: window,
+        availability: availability(&rec.validity, &rec.airborne),
+        scores,
+        consistency,
+        files,
+    };
+    let text = serde_json::to_string_pretty(&summary).unwrap_or_default() + "\n";
+    write_file(out, "summary.json", &text)?;
+    Ok(summary)
+}
+
+/// The APE of the fused track and of every source's against the reference, and the
+/// valid poses' consistency with it.
+fn score(
+    rec: &Recorder,
+    reference: &Reference<'_>,
+    window: Option<(f64, f64)>,
+) -> (Vec<Score>, Option<Consistency>) {
+    let tracks = || rec.sources.iter().chain(rec.dead_reckoning.out.iter());
     let mut scores = Vec::new();
     let mut score = |name: &str, tr: &Trajectory| {
         let tr = windowed(tr, window);
-        let (r, opts) = match &reference {
-            Reference::Truth(truth) => (Some(truth_at(*truth, &tr.t)), ApeOptions::default()),
+        let (r, opts) = match reference {
+            Reference::Truth(truth) | Reference::TruthInOwnFrame(truth) => {
+                (Some(truth_at(*truth, &tr.t)), ApeOptions::default())
+            }
             Reference::Source {
                 name: rn,
                 max_diff_s,
@@ -681,15 +756,24 @@ fn finish(
     };
     score("fused", &rec.fused);
     for (name, tr) in tracks() {
-        if matches!(reference, Reference::Source { name: rn, .. } if rn == name) {
+        if matches!(reference, Reference::Source { name: rn, .. } if *rn == name) {
             continue;
         }
         score(name, tr);
     }
-    let consistency = match &reference {
-        Reference::Truth(truth) => {
+    let consistency = match reference {
+        Reference::Truth(truth) | Reference::TruthInOwnFrame(truth) => {
             let t = truth_at(*truth, &rec.fused.t);
-            consistency(&t, None, &rec.fused, &rec.fused_cov, 1e-9, false)
+            let register = matches!(reference, Reference::TruthInOwnFrame(_));
+            consistency(
+                &t,
+                None,
+                &rec.fused,
+                &rec.fused_cov,
+                &rec.fused_pl,
+                1e-9,
+                register,
+            )
         }
         Reference::Source { name, max_diff_s } => rec.sources.get(name).and_then(|r| {
             let own = rec.source_cov.get(name).map(Vec::as_slice);
@@ -700,29 +784,18 @@ fn finish(
             } else {
                 r
             };
-            consistency(r, own, &rec.fused, &rec.fused_cov, *max_diff_s, true)
+            consistency(
+                r,
+                own,
+                &rec.fused,
+                &rec.fused_cov,
+                &rec.fused_pl,
+                *max_diff_s,
+                true,
+            )
         }),
     };
-    files.push("summary.json".into());
-    let summary = Summary {
-        input: input.name,
-        mode: input.mode.as_str(),
-        samples: input.samples,
-        fused_poses: rec.fused.t.len(),
-        events: rec.events.len(),
-        reference: match reference {
-            Reference::Truth(_) => "truth".into(),
-            Reference::Source { name, .. } => name.into(),
-        },
-        window_s: window,
-        availability: availability(&rec.validity, &rec.airborne),
-        scores,
-        consistency,
-        files,
-    };
-    let text = serde_json::to_string_pretty(&summary).unwrap_or_default() + "\n";
-    write_file(out, "summary.json", &text)?;
-    Ok(summary)
+    (scores, consistency)
 }
 
 /// Run a simulated scenario through the estimator.
@@ -735,8 +808,32 @@ pub fn run_scenario(
     out: &Path,
     progress: &mut dyn FnMut(f64),
 ) -> Result<Summary, OfflineError> {
-    let sim = scn.simulator(seed, duration_s);
     let mode = cfg.mode;
+    let (rec, samples) = fly(scn, seed, duration_s, cfg, health, progress);
+    let input = RunInput {
+        name: format!("scenario {} (seed {seed}, {duration_s} s)", scn.name),
+        mode,
+        samples,
+    };
+    let profile = scn.profile;
+    let truth = move |t: f64| {
+        let s = truth_of(profile, t);
+        (s.position, s.attitude)
+    };
+    finish(&rec, Reference::Truth(&truth), None, out, input)
+}
+
+/// Fly a simulated scenario through the service's fusion (checks, estimator, health),
+/// recording what it would have sent; returns the record and the samples fed.
+fn fly(
+    scn: &Scenario,
+    seed: u64,
+    duration_s: f64,
+    cfg: EstimatorConfig,
+    health: HealthConfig,
+    progress: &mut dyn FnMut(f64),
+) -> (Recorder, u64) {
+    let sim = scn.simulator(seed, duration_s);
     let inputs: InputList = scn
         .streams
         .iter()
@@ -788,16 +885,251 @@ pub fn run_scenario(
     // Faults scheduled in order of time, among the estimator's own events.
     rec.events
         .sort_by(|a, b| event_time(a).total_cmp(&event_time(b)));
+    (rec, samples)
+}
+
+/// What one randomised flight measured (see [`crate::sim::monte_carlo`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct DrawResult {
+    pub index: u64,
+    pub seed: u64,
+    pub family: String,
+    pub description: String,
+    pub duration_s: f64,
+    pub samples: u64,
+    pub availability: Availability,
+    /// Scored against the truth in the frame the estimate is sent in: GNSS's, else the
+    /// vehicle's own, registered at the first valid pose.
+    pub frame: &'static str,
+    pub consistency: Option<Consistency>,
+    /// SE(3)-aligned APE RMSE of the valid poses, m.
+    pub fused_rmse_m: Option<f64>,
+    /// The best single source's (its own track) and the flow dead reckoning's, m.
+    pub best_single: Option<(String, f64)>,
+    pub flow_dead_reckoning_m: Option<f64>,
+    /// Counts of the estimator's events by kind.
+    pub events: BTreeMap<String, usize>,
+}
+
+impl DrawResult {
+    /// Valid poses beyond their protection level.
+    pub fn integrity_failures(&self) -> usize {
+        self.consistency
+            .as_ref()
+            .map_or(0, |c| c.integrity_failures)
+    }
+
+    /// The fused track no farther from the truth than each single source and the flow
+    /// dead reckoning (what fusing should buy), within 1 cm.
+    pub fn fused_best(&self) -> bool {
+        let Some(f) = self.fused_rmse_m else {
+            return true;
+        };
+        let others = self
+            .best_single
+            .as_ref()
+            .map(|b| b.1)
+            .into_iter()
+            .chain(self.flow_dead_reckoning_m);
+        others.into_iter().all(|o| f <= o + 0.01)
+    }
+}
+
+/// The truth of a flight: position and attitude at `t`.
+type TruthFn = Box<dyn Fn(f64) -> (Vector3<f64>, UnitQuaternion<f64>)>;
+
+/// Draw `index` of a run seeded `seed`, flown through `cfg`: the draw, what was
+/// recorded, the samples flown and the flight's truth.
+fn fly_draw(
+    seed: u64,
+    index: u64,
+    cfg: EstimatorConfig,
+    health: HealthConfig,
+) -> (crate::sim::monte_carlo::Draw, Recorder, u64, TruthFn) {
+    let draw = crate::sim::monte_carlo::draw(seed, index);
+    let scn = draw.scenario();
+    let (rec, samples) = fly(&scn, draw.seed, draw.duration_s(), cfg, health, &mut |_| {});
+    let profile = scn.profile;
+    let truth: TruthFn = Box::new(move |t: f64| {
+        let s = truth_of(profile, t);
+        (s.position, s.attitude)
+    });
+    (draw, rec, samples, truth)
+}
+
+/// A draw with a GNSS is scored in the absolute frame, else in its own (registered).
+fn draw_reference<'a>(draw: &crate::sim::monte_carlo::Draw, truth: &'a TruthFn) -> Reference<'a> {
+    if draw.absolute() {
+        Reference::Truth(truth.as_ref())
+    } else {
+        Reference::TruthInOwnFrame(truth.as_ref())
+    }
+}
+
+/// Fly randomised flight `index` of a run seeded `seed` and write its files as a
+/// scenario run does (truth, fused and source tracks, σ, events, summary) into `out`.
+pub fn run_draw_files(
+    seed: u64,
+    index: u64,
+    cfg: EstimatorConfig,
+    health: HealthConfig,
+    out: &Path,
+) -> Result<Summary, OfflineError> {
+    let mode = cfg.mode;
+    let (draw, rec, samples, truth) = fly_draw(seed, index, cfg, health);
+    let reference = draw_reference(&draw, &truth);
     let input = RunInput {
-        name: format!("scenario {} (seed {seed}, {duration_s} s)", scn.name),
+        name: format!(
+            "monte-carlo draw {index} of seed {seed}: {}",
+            draw.describe()
+        ),
         mode,
         samples,
     };
-    let truth = move |t: f64| {
-        let s = truth_of(profile, t);
-        (s.position, s.attitude)
+    finish(&rec, reference, None, out, input)
+}
+
+/// Fly randomised flight `index` of a run seeded `seed` through `cfg` and score it.
+pub fn run_draw(seed: u64, index: u64, cfg: EstimatorConfig, health: HealthConfig) -> DrawResult {
+    let (draw, rec, samples, truth) = fly_draw(seed, index, cfg, health);
+    let duration_s = draw.duration_s();
+    let reference = draw_reference(&draw, &truth);
+    let (scores, consistency) = score(&rec, &reference, None);
+    let rmse = |name: &str| {
+        scores
+            .iter()
+            .find(|s| s.name == name)
+            .and_then(|s| s.ape.as_ref().map(|a| a.rmse))
     };
-    finish(&rec, Reference::Truth(&truth), None, out, input)
+    let best_single = scores
+        .iter()
+        .filter(|s| s.name != "fused" && !s.name.ends_with("_dr"))
+        .filter_map(|s| s.ape.as_ref().map(|a| (s.name.clone(), a.rmse)))
+        .min_by(|a, b| a.1.total_cmp(&b.1));
+    let flow_dead_reckoning_m = scores
+        .iter()
+        .filter(|s| s.name.ends_with("_dr"))
+        .filter_map(|s| s.ape.as_ref().map(|a| a.rmse))
+        .min_by(f64::total_cmp);
+    let mut events = BTreeMap::new();
+    for line in &rec.events {
+        let kind = serde_json::from_str::<serde_json::Value>(line)
+            .ok()
+            .and_then(|v| v["kind"].as_str().map(str::to_string))
+            .unwrap_or_default();
+        *events.entry(kind).or_insert(0) += 1;
+    }
+    DrawResult {
+        index,
+        seed: draw.seed,
+        family: draw.family(),
+        description: draw.describe(),
+        duration_s,
+        samples,
+        availability: availability(&rec.validity, &rec.airborne),
+        frame: if draw.absolute() { "gnss" } else { "own" },
+        consistency,
+        fused_rmse_m: rmse("fused"),
+        best_single,
+        flow_dead_reckoning_m,
+        events,
+    }
+}
+
+/// One scenario family's figures over its randomised flights (the Monte Carlo table).
+#[derive(Debug, Clone, Serialize)]
+pub struct FamilyRow {
+    pub family: String,
+    pub runs: usize,
+    /// Valid poses beyond their protection level, summed, and the runs with any.
+    pub integrity_failures: usize,
+    pub runs_with_failures: usize,
+    /// Valid poses beyond 5σ on any axis, summed.
+    pub beyond_5_sigma: usize,
+    /// Per axis (E, N, U): the lowest fraction of valid poses within 3σ over the runs.
+    pub within_3_sigma_min: [f64; 3],
+    /// Per axis: the median and the 5th-95th percentiles of the runs' mean e²/σ².
+    pub nees_axis_median: [f64; 3],
+    pub nees_axis_p5: [f64; 3],
+    pub nees_axis_p95: [f64; 3],
+    /// Valid fraction of the airborne time: median and lowest.
+    pub availability_median: f64,
+    pub availability_min: f64,
+    /// Fused RMSE (SE(3)-aligned, valid poses), the best single source's and the flow
+    /// dead reckoning's: medians, m.
+    pub fused_rmse_median: Option<f64>,
+    pub best_single_median: Option<f64>,
+    pub flow_dr_median: Option<f64>,
+    /// Runs whose fused track is no worse than every single source and the flow dead
+    /// reckoning.
+    pub fused_best: usize,
+}
+
+/// The `q`-quantile of `v` (nearest rank), None when empty.
+pub fn quantile(v: &[f64], q: f64) -> Option<f64> {
+    let mut v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let i = ((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+    Some(v[i])
+}
+
+/// The table of `results` by family (sorted by name), and a last row `all`.
+pub fn family_rows(results: &[DrawResult]) -> Vec<FamilyRow> {
+    let mut by: BTreeMap<&str, Vec<&DrawResult>> = BTreeMap::new();
+    for r in results {
+        by.entry(r.family.as_str()).or_default().push(r);
+    }
+    let mut rows: Vec<FamilyRow> = by.iter().map(|(f, rs)| family_row(f, rs)).collect();
+    let all: Vec<&DrawResult> = results.iter().collect();
+    rows.push(family_row("all", &all));
+    rows
+}
+
+fn family_row(family: &str, rs: &[&DrawResult]) -> FamilyRow {
+    let cons: Vec<&Consistency> = rs.iter().filter_map(|r| r.consistency.as_ref()).collect();
+    let axis =
+        |f: &dyn Fn(&Consistency) -> f64| -> Vec<f64> { cons.iter().map(|c| f(c)).collect() };
+    let mut nees_axis_median = [0.0; 3];
+    let mut nees_axis_p5 = [0.0; 3];
+    let mut nees_axis_p95 = [0.0; 3];
+    let mut within_3_sigma_min = [1.0f64; 3];
+    for a in 0..3 {
+        let v = axis(&|c| c.nees_axis[a]);
+        nees_axis_median[a] = quantile(&v, 0.5).unwrap_or(f64::NAN);
+        nees_axis_p5[a] = quantile(&v, 0.05).unwrap_or(f64::NAN);
+        nees_axis_p95[a] = quantile(&v, 0.95).unwrap_or(f64::NAN);
+        within_3_sigma_min[a] = axis(&|c| c.within_3_sigma[a])
+            .into_iter()
+            .fold(1.0, f64::min);
+    }
+    let avail: Vec<f64> = rs
+        .iter()
+        .map(|r| r.availability.airborne_valid_fraction.unwrap_or(0.0))
+        .collect();
+    let med = |v: Vec<f64>| quantile(&v, 0.5);
+    FamilyRow {
+        family: family.to_string(),
+        runs: rs.len(),
+        integrity_failures: rs.iter().map(|r| r.integrity_failures()).sum(),
+        runs_with_failures: rs.iter().filter(|r| r.integrity_failures() > 0).count(),
+        beyond_5_sigma: cons.iter().map(|c| c.beyond_5_sigma).sum(),
+        within_3_sigma_min,
+        nees_axis_median,
+        nees_axis_p5,
+        nees_axis_p95,
+        availability_median: quantile(&avail, 0.5).unwrap_or(0.0),
+        availability_min: avail.iter().copied().fold(1.0, f64::min),
+        fused_rmse_median: med(rs.iter().filter_map(|r| r.fused_rmse_m).collect()),
+        best_single_median: med(rs
+            .iter()
+            .filter_map(|r| r.best_single.as_ref().map(|b| b.1))
+            .collect()),
+        flow_dr_median: med(rs.iter().filter_map(|r| r.flow_dead_reckoning_m).collect()),
+        fused_best: rs.iter().filter(|r| r.fused_best()).count(),
+    }
 }
 
 fn event_time(line: &str) -> f64 {

@@ -44,10 +44,12 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, b: &Baro) {
     let name = block_name(source);
     let mut st = core.baro.get(source).cloned().unwrap_or_default();
     let restart = st.rejected_since.is_some_and(|s| t - s >= RESTART_AFTER_US);
-    let Some(ekf) = core.ekf.as_mut() else { return };
-    if st.origin.is_none() || restart || ekf.block(&name).is_none() {
-        let idx = ekf.start_block(&name);
-        let z = ekf.x[IDX_P + 2] + ekf.x[idx + 2];
+    let Some(bank) = core.ekf.as_mut() else {
+        return;
+    };
+    if st.origin.is_none() || restart || bank.block(&name).is_none() {
+        let idx = bank.each_main(|ekf| ekf.start_block(&name));
+        let z = bank.x[IDX_P + 2] + bank.x[idx + 2];
         st.origin = Some(alt - z);
         if restart {
             st.restarts += 1;
@@ -70,6 +72,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, b: &Baro) {
         core.mark_seen(t, source, "baro");
         return;
     }
+    let ekf = &**bank;
     let Some(idx) = ekf.block(&name) else { return };
     let origin = st.origin.unwrap_or(0.0);
     let noise = cfg.source(source).noise.unwrap_or(cfg.baro_noise);

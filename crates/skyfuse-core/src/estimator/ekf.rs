@@ -8,7 +8,10 @@
 //! fix, whose altitude error is the terrain's height in that frame; range measures
 //! p_z − z_t), GNSS error b_g (10..13: the slowly varying part of the GNSS error,
 //! first-order Gauss–Markov, so averaging many fixes does not make the filter
-//! over-confident), then one 3-state block per visual-odometry source: the offset
+//! over-confident), the heading error of the attitude the filter is given ψ_a (13: the
+//! autopilot's yaw is off by a compass's error, which wanders; the specific force and
+//! every body-frame velocity are turned into the world by the true heading
+//! `Rz(−ψ_a)·R`), then one 3-state block per visual-odometry source: the offset
 //! of that source's aligned frame from the world (its drift), so odometry positions are
 //! modelled as `z = p + b`. A block starts fully correlated with p (b = 0,
 //! P_bb = P_pp, P_bp = -P_pp), which makes the first measurements carry only relative
@@ -24,7 +27,8 @@ pub const IDX_V: usize = 3;
 pub const IDX_BA: usize = 6;
 pub const IDX_TERRAIN: usize = 9;
 pub const IDX_BG: usize = 10;
-pub const CORE_STATES: usize = 13;
+pub const IDX_YAW: usize = 13;
+pub const CORE_STATES: usize = 14;
 /// Smallest variance kept on the diagonal (numerical floor).
 const VAR_FLOOR: f64 = 1e-12;
 
@@ -78,6 +82,31 @@ pub struct Ekf {
     /// GNSS slow error: stationary 1σ per axis (m) and correlation time (s).
     pub gnss_bias_std: Vector3<f64>,
     pub gnss_bias_tau_s: f64,
+    /// The attitude's heading error ψ_a: stationary 1σ (rad) and correlation time (s).
+    pub yaw_error_std: f64,
+    pub yaw_error_tau_s: f64,
+    /// (source id, index) of each aiding source's unknown delay τ (s): it measures
+    /// the state of `τ` ago, `h(x(t − τ)) ≈ h(x) − τ·dh/dt`.
+    pub delays: Vec<(String, usize)>,
+    /// Random walk of the delays, s/√s.
+    pub delay_rw: f64,
+    /// (source id, index) of each odometry segment's alignment error ε (rad): the
+    /// heading error the segment was aligned with, so that its positions turn about
+    /// where it started by ε.
+    pub align_yaws: Vec<(String, usize)>,
+    /// Random walk of those (an odometry's own heading drift), rad/√s.
+    pub align_yaw_rw: f64,
+    /// Correlation time of the velocity, s: infinite while an IMU drives the
+    /// prediction; without one (the constant-velocity stand-in) a multicopter's
+    /// velocity is a Gauss–Markov process that returns to rest, not a value held for
+    /// ever (unaided, a held velocity carries the position away in a straight line).
+    pub velocity_tau_s: f64,
+    /// The world acceleration of the predictions, low-passed over
+    /// [`ACCEL_SMOOTH_TAU_S`], m/s²: what a velocity's delay turns into a difference.
+    /// The raw one would be the IMU's noise and vibration, which a delay's Jacobian
+    /// would take for information (a vehicle standing on the ground "seeing" its
+    /// camera's delay to 5 ms).
+    pub accel_world: Vector3<f64>,
 }
 
 impl Ekf {
@@ -108,7 +137,124 @@ impl Ekf {
             terrain_gradient: 0.0,
             gnss_bias_std: Vector3::zeros(),
             gnss_bias_tau_s: 1.0,
+            yaw_error_std: 0.0,
+            yaw_error_tau_s: 1.0,
+            velocity_tau_s: f64::INFINITY,
+            delays: Vec::new(),
+            delay_rw: 0.0,
+            align_yaws: Vec::new(),
+            align_yaw_rw: 0.0,
+            accel_world: Vector3::zeros(),
         }
+    }
+
+    /// A short name for every state, in order (for a developer's listing).
+    pub fn state_names(&self) -> Vec<String> {
+        let core = [
+            "px", "py", "pz", "vx", "vy", "vz", "bax", "bay", "baz", "terrain", "bgx", "bgy",
+            "bgz", "yaw",
+        ];
+        let mut names: Vec<String> = core.iter().map(|s| s.to_string()).collect();
+        names.resize(self.n(), String::new());
+        for (s, i) in &self.blocks {
+            for (k, axis) in ["x", "y", "z"].iter().enumerate() {
+                names[i + k] = format!("{s}.b{axis}");
+            }
+        }
+        for (s, i) in &self.scales {
+            names[*i] = format!("{s}.scale");
+            names[i + 1] = format!("{s}.heading");
+        }
+        for (s, i) in &self.delays {
+            names[*i] = format!("{s}.delay");
+        }
+        for (s, i) in &self.align_yaws {
+            names[*i] = format!("{s}.align_yaw");
+        }
+        names
+    }
+
+    /// The heading error of the attitude the filter is given, rad.
+    pub fn yaw_error(&self) -> f64 {
+        self.x[IDX_YAW]
+    }
+
+    /// The attitude's rotation corrected by the heading error: body → world.
+    pub fn true_rotation(&self, rot: &Matrix3<f64>) -> Matrix3<f64> {
+        yaw_rotation(-self.yaw_error()) * rot
+    }
+
+    /// Set the heading error's model and its prior 1σ (rad).
+    pub fn set_yaw_error_model(&mut self, std: f64, tau_s: f64, prior_std: f64) {
+        self.yaw_error_std = std;
+        self.yaw_error_tau_s = tau_s;
+        self.p[(IDX_YAW, IDX_YAW)] = prior_std * prior_std;
+    }
+
+    /// The index of `source`'s delay state, added (0, variance `var`) on first use.
+    pub fn delay_state(&mut self, source: &str, var: f64) -> usize {
+        if let Some(&(_, i)) = self.delays.iter().find(|(s, _)| s == source) {
+            return i;
+        }
+        let n = self.n();
+        self.grow(1);
+        self.p[(n, n)] = var;
+        self.delays.push((source.to_string(), n));
+        n
+    }
+
+    /// Start (or restart) `source`'s alignment error ε: the error of the heading error
+    /// estimate now, `ψ_a − ψ̂_a`, so 0 with ψ_a's variance and correlations.
+    pub fn start_align_yaw(&mut self, source: &str) -> usize {
+        let idx = match self.align_yaws.iter().find(|(s, _)| s == source) {
+            Some(&(_, i)) => i,
+            None => {
+                let n = self.n();
+                self.grow(1);
+                self.align_yaws.push((source.to_string(), n));
+                n
+            }
+        };
+        let n = self.n();
+        self.x[idx] = 0.0;
+        for j in 0..n {
+            let c = if j == idx {
+                self.p[(IDX_YAW, IDX_YAW)]
+            } else {
+                self.p[(IDX_YAW, j)]
+            };
+            self.p[(idx, j)] = c;
+            self.p[(j, idx)] = c;
+        }
+        self.symmetrise();
+        idx
+    }
+
+    /// The index of `source`'s alignment error, if it has one.
+    pub fn align_yaw_of(&self, source: &str) -> Option<usize> {
+        self.align_yaws
+            .iter()
+            .find(|(s, _)| s == source)
+            .map(|&(_, i)| i)
+    }
+
+    /// The index of `source`'s delay state, if it has one.
+    pub fn delay_of(&self, source: &str) -> Option<usize> {
+        self.delays
+            .iter()
+            .find(|(s, _)| s == source)
+            .map(|&(_, i)| i)
+    }
+
+    /// `extra` more states, zero, uncorrelated, variance zero until set.
+    fn grow(&mut self, extra: usize) {
+        let n = self.n();
+        let mut x = DVector::zeros(n + extra);
+        x.rows_mut(0, n).copy_from(&self.x);
+        let mut p = DMatrix::zeros(n + extra, n + extra);
+        p.view_mut((0, 0), (n, n)).copy_from(&self.p);
+        self.x = x;
+        self.p = p;
     }
 
     pub fn n(&self) -> usize {
@@ -170,9 +316,19 @@ impl Ekf {
         }
         let n = self.n();
         let ba = self.accel_bias();
-        let a = rot * (f_body - ba) - Vector3::new(0.0, 0.0, GRAVITY);
+        // The true heading: the given attitude turned back by its heading error.
+        let rot = &self.true_rotation(rot);
+        let u = rot * (f_body - ba);
+        let a = u - Vector3::new(0.0, 0.0, GRAVITY);
+        let k = (dt / (ACCEL_SMOOTH_TAU_S + dt)).min(1.0);
+        self.accel_world += (a - self.accel_world) * k;
+        let phi_v = if self.velocity_tau_s.is_finite() {
+            (-dt / self.velocity_tau_s.max(1e-3)).exp()
+        } else {
+            1.0
+        };
         let p = self.pos() + self.vel() * dt + a * (0.5 * dt * dt);
-        let v = self.vel() + a * dt;
+        let v = self.vel() * phi_v + a * dt;
         self.x.fixed_rows_mut::<3>(IDX_P).copy_from(&p);
         self.x.fixed_rows_mut::<3>(IDX_V).copy_from(&v);
 
@@ -184,11 +340,19 @@ impl Ekf {
         // columns) and the b_g diagonal, so F P changes 9 rows of P and (F P) Fᵀ the same
         // 9 columns: O(n) work per row instead of two dense n³ products and their
         // allocations (the IMU runs this at its full rate).
+        // d(Rz(−ψ)·u)/dψ = (u_y, −u_x, 0): the specific force turned by the heading error.
+        let turn = Vector3::new(u.y, -u.x, 0.0);
+        let phi_yaw = (-dt / self.yaw_error_tau_s.max(1e-3)).exp();
+        self.x[IDX_YAW] *= phi_yaw;
         let f = Transition {
             dt,
             p_ba: -rot * (0.5 * dt * dt),
             v_ba: -rot * dt,
+            p_yaw: turn * (0.5 * dt * dt),
+            v_yaw: turn * dt,
             phi,
+            phi_yaw,
+            phi_v,
         };
         f.apply_to_columns(self.p.as_mut_slice(), n);
         f.apply_to_rows(self.p.as_mut_slice(), n);
@@ -209,6 +373,13 @@ impl Ekf {
         next[(IDX_TERRAIN, IDX_TERRAIN)] += terrain_q * dt;
         for i in 0..3 {
             next[(IDX_BG + i, IDX_BG + i)] += self.gnss_bias_std[i].powi(2) * (1.0 - phi * phi);
+        }
+        next[(IDX_YAW, IDX_YAW)] += self.yaw_error_std.powi(2) * (1.0 - phi_yaw * phi_yaw);
+        for &(_, idx) in &self.delays {
+            next[(idx, idx)] += self.delay_rw * self.delay_rw * dt;
+        }
+        for &(_, idx) in &self.align_yaws {
+            next[(idx, idx)] += self.align_yaw_rw * self.align_yaw_rw * dt;
         }
         for &(_, idx) in &self.scales {
             next[(idx, idx)] += self.scale_rw * self.scale_rw * dt;
@@ -432,12 +603,7 @@ impl Ekf {
             Some(i) => i,
             None => {
                 let n = self.n();
-                let mut x = DVector::zeros(n + 3);
-                x.rows_mut(0, n).copy_from(&self.x);
-                let mut p = DMatrix::zeros(n + 3, n + 3);
-                p.view_mut((0, 0), (n, n)).copy_from(&self.p);
-                self.x = x;
-                self.p = p;
+                self.grow(3);
                 self.blocks.push((source.to_string(), n));
                 n
             }
@@ -470,14 +636,9 @@ impl Ekf {
             return i;
         }
         let n = self.n();
-        let mut x = DVector::zeros(n + 2);
-        x.rows_mut(0, n).copy_from(&self.x);
-        let mut p = DMatrix::zeros(n + 2, n + 2);
-        p.view_mut((0, 0), (n, n)).copy_from(&self.p);
-        p[(n, n)] = scale_var;
-        p[(n + 1, n + 1)] = heading_var;
-        self.x = x;
-        self.p = p;
+        self.grow(2);
+        self.p[(n, n)] = scale_var;
+        self.p[(n + 1, n + 1)] = heading_var;
         self.scales.push((source.to_string(), n));
         n
     }
@@ -497,6 +658,39 @@ impl Ekf {
         }
         let sd = DMatrix::from_iterator(3, 3, s.iter().copied());
         self.p += &j * sd * j.transpose();
+        self.symmetrise();
+    }
+
+    /// The frame's heading became uncertain by `var` (rad²): a frame that started at
+    /// the take-off heading the autopilot gave is anchored to the geographic one by
+    /// GNSS. The heading error of the attitude is now relative to north, and the
+    /// velocity, kept in the old axes, turns with it (the position does not: the
+    /// origin is placed where the vehicle is).
+    pub fn add_heading_uncertainty(&mut self, var: f64) {
+        if !(var.is_finite() && var > 0.0) {
+            return;
+        }
+        let n = self.n();
+        let v = self.vel();
+        let mut j = DVector::zeros(n);
+        j[IDX_YAW] = 1.0;
+        j[IDX_V] = -v.y;
+        j[IDX_V + 1] = v.x;
+        self.p += &j * j.transpose() * var;
+        self.symmetrise();
+    }
+
+    /// The states `idx` forget what they knew: variance `var`, uncorrelated with the
+    /// rest (what a reset to a measurement starts from).
+    pub fn forget(&mut self, idx: &[usize], var: f64) {
+        let n = self.n();
+        for &i in idx {
+            for j in 0..n {
+                self.p[(i, j)] = 0.0;
+                self.p[(j, i)] = 0.0;
+            }
+            self.p[(i, i)] = var;
+        }
         self.symmetrise();
     }
 
@@ -578,17 +772,22 @@ impl Ekf {
 }
 
 /// The state transition of one IMU step, by its non-identity parts: p += v·dt +
-/// p_ba·b_a, v += v_ba·b_a, b_g *= phi.
+/// p_ba·b_a + p_yaw·ψ_a, v ← phi_v·v + v_ba·b_a + v_yaw·ψ_a, b_g *= phi, ψ_a *= phi_yaw.
 struct Transition {
     dt: f64,
     p_ba: Matrix3<f64>,
     v_ba: Matrix3<f64>,
+    p_yaw: Vector3<f64>,
+    v_yaw: Vector3<f64>,
     phi: f64,
+    phi_yaw: f64,
+    /// The velocity's decay over the step (1 while an IMU drives the prediction).
+    phi_v: f64,
 }
 
 impl Transition {
-    /// The states whose rows (and columns) F changes: p, v and b_g.
-    const CHANGED: [usize; 9] = [
+    /// The states whose rows (and columns) F changes: p, v, b_g and ψ_a.
+    const CHANGED: [usize; 10] = [
         IDX_P,
         IDX_P + 1,
         IDX_P + 2,
@@ -598,6 +797,7 @@ impl Transition {
         IDX_BG,
         IDX_BG + 1,
         IDX_BG + 2,
+        IDX_YAW,
     ];
 
     /// One line (a column of F·m, or a row of m·Fᵀ: the same operation on the
@@ -606,13 +806,15 @@ impl Transition {
     fn apply(&self, m: &mut [f64], at: impl Fn(usize) -> usize) {
         let v = Vector3::new(m[at(IDX_V)], m[at(IDX_V + 1)], m[at(IDX_V + 2)]);
         let ba = Vector3::new(m[at(IDX_BA)], m[at(IDX_BA + 1)], m[at(IDX_BA + 2)]);
-        let dp = v * self.dt + self.p_ba * ba;
-        let dv = self.v_ba * ba;
+        let yaw = m[at(IDX_YAW)];
+        let dp = v * self.dt + self.p_ba * ba + self.p_yaw * yaw;
+        let dv = self.v_ba * ba + self.v_yaw * yaw;
         for i in 0..3 {
             m[at(IDX_P + i)] += dp[i];
-            m[at(IDX_V + i)] = v[i] + dv[i];
+            m[at(IDX_V + i)] = v[i] * self.phi_v + dv[i];
             m[at(IDX_BG + i)] *= self.phi;
         }
+        m[at(IDX_YAW)] = yaw * self.phi_yaw;
     }
 
     /// m ← F·m for the n×n column-major `m`: each column is contiguous.
@@ -631,7 +833,16 @@ impl Transition {
     }
 }
 
-/// P·Hᵀ and the gain of a filter this large fit on the stack (13 core states and 17
+/// Time constant of the world acceleration a delay is judged by, s.
+pub const ACCEL_SMOOTH_TAU_S: f64 = 0.1;
+
+/// Rotation about the vertical by `yaw`, rad.
+pub fn yaw_rotation(yaw: f64) -> Matrix3<f64> {
+    let (s, c) = yaw.sin_cos();
+    Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
+}
+
+/// P·Hᵀ and the gain of a filter this large fit on the stack (14 core states and 16
 /// odometry sources); a larger one takes them from the heap.
 pub const STACK_STATES: usize = 64;
 
@@ -862,17 +1073,28 @@ mod tests {
         let dt = 0.005;
         ekf.predict(Vector3::new(0.3, -0.1, 9.9), &rot, dt, 0.0, 0.0, |_| 0.0);
 
+        // The attitude's heading error state turns the specific force: the true
+        // rotation is Rz(−ψ_a)·R, and F has the derivative by ψ_a in the p and v rows.
+        let x0 = DVector::from_fn(n, |i, _| i as f64 * 0.1);
+        let rot_true = yaw_rotation(-x0[IDX_YAW]) * rot;
+        let ba = Vector3::new(x0[IDX_BA], x0[IDX_BA + 1], x0[IDX_BA + 2]);
+        let u = rot_true * (Vector3::new(0.3, -0.1, 9.9) - ba);
+        let turn = Vector3::new(u.y, -u.x, 0.0);
         let mut f = DMatrix::identity(n, n);
         for i in 0..3 {
             f[(IDX_P + i, IDX_V + i)] = dt;
+            f[(IDX_P + i, IDX_YAW)] = turn[i] * 0.5 * dt * dt;
+            f[(IDX_V + i, IDX_YAW)] = turn[i] * dt;
         }
         f.view_mut((IDX_P, IDX_BA), (3, 3))
-            .copy_from(&(-rot * (0.5 * dt * dt)));
-        f.view_mut((IDX_V, IDX_BA), (3, 3)).copy_from(&(-rot * dt));
+            .copy_from(&(-rot_true * (0.5 * dt * dt)));
+        f.view_mut((IDX_V, IDX_BA), (3, 3))
+            .copy_from(&(-rot_true * dt));
         let phi = (-dt / 30.0f64).exp();
         for i in 0..3 {
             f[(IDX_BG + i, IDX_BG + i)] = phi;
         }
+        f[(IDX_YAW, IDX_YAW)] = (-dt / ekf.yaw_error_tau_s).exp();
         let dense = &f * &p0 * f.transpose();
         let worst = (&ekf.p - &dense).abs().max();
         assert!(worst < 1e-12, "differs by {worst}");

@@ -154,6 +154,15 @@ impl FlowCalibrator {
     }
 }
 
+/// The flow's rate noise at `quality` (EKF2's EKF2_OF_N_MIN at 255 to EKF2_OF_N_MAX at
+/// the least usable quality, linearly): a sensor losing its texture reads slow and
+/// noisy before it says so.
+fn rate_noise_at(quality: u8, cfg: &super::EstimatorConfig) -> f64 {
+    let lo = f64::from(cfg.flow_min_quality);
+    let x = ((255.0 - f64::from(quality)) / (255.0 - lo).max(1.0)).clamp(0.0, 1.0);
+    cfg.flow_rate_noise + (cfg.flow_rate_noise_max - cfg.flow_rate_noise).max(0.0) * x
+}
+
 /// A filter started in flight does not know the vertical speed: 1σ, m/s (multirotors
 /// climb and sink at up to 2.5-3 m/s).
 const IN_FLIGHT_VZ_STD: f64 = 2.0;
@@ -233,7 +242,18 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
         .get_mut(source)
         .map(std::mem::take)
         .unwrap_or_default();
-    let rate_noise = sc.noise.unwrap_or(cfg.flow_rate_noise);
+    // Discounted by quality only where an IMU carries the velocity between samples:
+    // without one the flow is the velocity, and a noisier flow only makes the
+    // constant-velocity stand-in lag it (measured on the real PX4 flight: 1.21 m RMSE
+    // against the VIO with, 0.92 m without).
+    let imu_drives = core.imu_drives(t, ctx);
+    let rate_noise = sc.noise.unwrap_or_else(|| {
+        if imu_drives {
+            rate_noise_at(f.quality, cfg)
+        } else {
+            cfg.flow_rate_noise
+        }
+    });
     let fv = if let Some(rate) = f.rate {
         if !rate.iter().all(|v| v.is_finite()) || rate.amax() > sc.max_rate {
             core.flow.put(source, st);

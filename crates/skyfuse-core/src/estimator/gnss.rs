@@ -75,8 +75,12 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
                 Some(p) => {
                     // Place the origin so that this fix is where we already are.
                     let (lat, lon, alt) = at_fix.to_geodetic(-p);
-                    if let Some(ekf) = core.ekf.as_mut() {
-                        ekf.add_frame_uncertainty(&cov);
+                    if let Some(bank) = core.ekf.as_mut() {
+                        let yaw_var = cfg.yaw_error_std * cfg.yaw_error_std;
+                        bank.each(|ekf| {
+                            ekf.add_frame_uncertainty(&cov);
+                            ekf.add_heading_uncertainty(yaw_var);
+                        });
                     }
                     core.wrls.add_frame_uncertainty(&cov);
                     LocalEnu::new(lat, lon, alt)
@@ -110,27 +114,31 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         .velocity
         .filter(|v| cfg.gnss_fuse_velocity && v.iter().all(|x| x.is_finite()));
     let vel_noise = cfg.source(source).vel_noise.unwrap_or(cfg.gnss_vel_noise);
-    // A configured noise is the white part (1σ horizontal; vertical keeps the message's
-    // vertical/horizontal ratio); else the message's variance less the modelled slow part.
-    let noise_override = cfg.source(source).noise;
-    let white = match noise_override {
+    // The slow part of the error: a fraction of the variance the receiver reports (at
+    // most the configured 1σ), a state of the filter; the rest is white. A configured
+    // noise is the white part (1σ horizontal; vertical keeps the message's ratio).
+    let bias_std = bias_std(&cov, cfg);
+    let white = match cfg.source(source).noise {
         Some(s) => {
             let ratio = (cov[(2, 2)] / cov[(0, 0)].max(1e-12)).max(1.0);
             Matrix3::from_diagonal(&Vector3::new(s * s, s * s, s * s * ratio))
         }
         None => {
             let mut w = cov;
-            let (b, bv) = (cfg.gnss_bias_std_m, cfg.gnss_bias_std_v_m);
-            for (i, var) in [b * b, b * b, bv * bv].into_iter().enumerate() {
-                w[(i, i)] = (cov[(i, i)] - var).max(0.25 * cov[(i, i)]);
+            for i in 0..3 {
+                w[(i, i)] = (cov[(i, i)] - bias_std[i] * bias_std[i]).max(0.05 * cov[(i, i)]);
             }
             w
         }
     };
+    if let Some(bank) = core.ekf.as_mut() {
+        bank.each(|e| e.gnss_bias_std = bias_std);
+    }
     core.wrls.add_absolute(source, enu, cov.diagonal());
     core.monitors
         .gps_fix(t, enu, vel, fix.velocity_up_known, cfg);
     if !core.initialised() {
+        core.gnss_bias_prior = Some(bias_std);
         if core.att.known() {
             let v_var = vel.map(|_| Vector3::repeat(vel_noise * vel_noise));
             core.initialise(t, source, enu, cov.diagonal(), vel, v_var, ctx);
@@ -145,15 +153,15 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     let lost =
         core.unaided_since.is_some() || core.ground.last_h_aiding.is_none_or(|l| t - l > timeout);
     if lost && core.mode_ekf_direct {
-        if let Some(ekf) = core.ekf.as_mut() {
+        if let Some(bank) = core.ekf.as_mut() {
             let bias = Vector3::new(
-                ekf.x[super::ekf::IDX_BG],
-                ekf.x[super::ekf::IDX_BG + 1],
-                ekf.x[super::ekf::IDX_BG + 2],
+                bank.x[super::ekf::IDX_BG],
+                bank.x[super::ekf::IDX_BG + 1],
+                bank.x[super::ekf::IDX_BG + 2],
             );
-            let from = ekf.pos();
+            let from = bank.pos();
             let v_var = vel_noise * vel_noise;
-            ekf.reset_pos_vel(enu - bias, vel, cov.diagonal(), v_var);
+            bank.each(|ekf| ekf.reset_pos_vel(enu - bias, vel, cov.diagonal(), v_var));
             for st in core.odom.values_mut() {
                 st.align = None;
             }
@@ -194,6 +202,17 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         let rows = if fix.velocity_up_known { 3 } else { 2 };
         core.fuse_world_velocity(t, source, v, &r, rows, ctx);
     }
+}
+
+/// 1σ per axis of the slow part of a fix's error whose covariance is `cov`.
+pub fn bias_std(cov: &Matrix3<f64>, cfg: &EstimatorConfig) -> Vector3<f64> {
+    let f = cfg.gnss_bias_fraction.clamp(0.0, 1.0);
+    let cap = [
+        cfg.gnss_bias_std_m,
+        cfg.gnss_bias_std_m,
+        cfg.gnss_bias_std_v_m,
+    ];
+    Vector3::from_fn(|i, _| (f * cov[(i, i)].max(0.0)).sqrt().min(cap[i]))
 }
 
 /// A fix from a GNSS the health layer took out: only its innovation test, on a copy

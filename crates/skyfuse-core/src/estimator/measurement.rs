@@ -5,13 +5,13 @@
 //! then costs O(nnz·n), and nothing is allocated per sample.
 
 use super::ekf::{IDX_P, IDX_TERRAIN};
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{DVector, Matrix3, Vector3};
 
 /// Most rows a measurement has (a 3-D position or velocity).
 pub const MAX_ROWS: usize = 3;
 /// Most states one Jacobian row reads (a flow velocity reads the three velocity states
 /// and its source's scale and heading errors).
-const ROW_STATES: usize = 5;
+const ROW_STATES: usize = 8;
 
 /// Innovation `y = z − h(x)`, Jacobian `H` (rows × n, sparse) and noise `R`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -162,6 +162,18 @@ impl Measurement {
 
     pub(super) fn jacobian_row(&self, row: usize) -> &JacobianRow {
         &self.h[..self.rows][row]
+    }
+
+    /// The same measurement linearised about the state `to` instead of `from` (to
+    /// first order: `y − H (to − from)`), for another filter of the same layout.
+    pub fn about(&self, from: &DVector<f64>, to: &DVector<f64>) -> Self {
+        let mut m = *self;
+        for (row, y) in self.h[..self.rows].iter().zip(&mut m.y) {
+            for (k, hk) in row.entries() {
+                *y -= hk * (to[k] - from[k]);
+            }
+        }
+        m
     }
 
     /// The largest state index H reads, if any.

@@ -33,6 +33,7 @@
 //! 3; WRLS treats its sources as independent and is over-confident), hence the default.
 
 pub mod attitude;
+pub mod bank;
 mod baro;
 pub mod config;
 pub mod ekf;
@@ -40,6 +41,7 @@ mod flow;
 mod gnss;
 mod ground;
 mod imu;
+pub mod integrity;
 mod measurement;
 pub mod monitor;
 mod odometry;
@@ -52,6 +54,7 @@ pub mod wrls;
 
 pub use config::{EstimatorConfig, Mode, SourceConfig};
 pub use flow::CalState;
+pub use integrity::IntegrityConfig;
 
 use crate::event;
 use crate::sample::{Sample, SensorData, SensorKind};
@@ -67,7 +70,7 @@ pub use crate::event::{EstimatorEvent, Event};
 pub(crate) use state::{Core, Ctx};
 pub use status::{
     CalibrationStatus, DebugPoint, DebugSeries, DebugTopic, EstimatorStatus, FusedPose,
-    SourceStatus,
+    IntegrityStatus, Protection, SourceStatus,
 };
 
 /// Order of samples at equal times: prediction inputs first.
@@ -166,7 +169,20 @@ pub struct Estimator {
     /// EKF2's IMU down-sampling in front of the filter (`predict_period_ms`).
     imu_down: imu::DownSampler,
     imu_passed: Vec<(i64, crate::sample::Imu)>,
+    /// Per aiding source, the delay the filter has found beyond its configured latency
+    /// and moved into its samples' times, µs (see [`Self::adopt_delays`]), and the
+    /// newest time given to one of its samples.
+    delay_shift: SourceMap<(i64, i64)>,
 }
+
+/// An estimated delay is moved into the source's sample times once it is this large,
+/// µs, and known to within [`DELAY_ADOPT_STD_US`].
+const DELAY_ADOPT_US: i64 = 10_000;
+const DELAY_ADOPT_STD_US: f64 = 30_000.0;
+/// Bounds of the delay moved into a source's sample times, µs: what a sensor, a bridge
+/// and a queue plausibly add to (or take from) its configured latency.
+const DELAY_SHIFT_MIN_US: i64 = -100_000;
+const DELAY_SHIFT_MAX_US: i64 = 600_000;
 
 /// A snapshot of the core at most this often, µs. Any earlier snapshot re-runs to the
 /// same state, so the spacing trades the clones (the core is large: maps, series,
@@ -200,6 +216,49 @@ impl Estimator {
             observed_t: None,
             imu_down: imu::DownSampler::default(),
             imu_passed: Vec::new(),
+            delay_shift: SourceMap::new(),
+        }
+    }
+
+    /// A source's delay, once the filter knows it, moves from its state into the times
+    /// its samples are fused at: the filter then sees each at the moment it measured,
+    /// and its delay state only the rest, small, where the first-order model of it is
+    /// exact (a camera 0.3 s late on a vehicle turning at a rad/s is not). The shift
+    /// is taken out of the state of every filter, in every snapshot too.
+    fn adopt_delays(&mut self) {
+        let Some(bank) = self.core.ekf.as_ref() else {
+            return;
+        };
+        let mut moves = Vec::new();
+        for (source, idx) in &bank.delays {
+            let tau_us = bank.x[*idx] * 1e6;
+            let std_us = bank.p[(*idx, *idx)].max(0.0).sqrt() * 1e6;
+            // Known, and well beyond its own uncertainty.
+            if tau_us.abs() < DELAY_ADOPT_US as f64
+                || std_us > DELAY_ADOPT_STD_US
+                || std_us * 3.0 > tau_us.abs()
+            {
+                continue;
+            }
+            let shift = self.delay_shift.get(source).map_or(0, |d| d.0);
+            let to = (shift + tau_us.round() as i64).clamp(DELAY_SHIFT_MIN_US, DELAY_SHIFT_MAX_US);
+            if to != shift {
+                moves.push((source.clone(), *idx, to, (to - shift) as f64 * 1e-6));
+            }
+        }
+        for (source, idx, to, moved_s) in moves {
+            self.delay_shift
+                .get_or_insert_with(&source, || (0, i64::MIN))
+                .0 = to;
+            let adjust = |b: &mut bank::Bank| b.each(|e| e.x[idx] -= moved_s);
+            if let Some(b) = self.core.ekf.as_mut() {
+                adjust(b);
+            }
+            for (_, snap) in self.snaps.iter_mut() {
+                if let Some(b) = snap.ekf.as_mut().filter(|b| b.n() > idx) {
+                    adjust(b);
+                }
+            }
         }
     }
 
@@ -253,7 +312,20 @@ impl Estimator {
         if self.cfg.sources.get(src).is_some_and(|c| !c.fuse) {
             return vec![];
         }
-        let t = self.clocks.host_time(&self.cfg, s);
+        let mapped = self.clocks.host_time(&self.cfg, s);
+        let mut t = mapped;
+        if kind != SensorKind::Imu {
+            let (shift, newest) = self.delay_shift.get_or_insert_with(src, || (0, i64::MIN));
+            t -= *shift;
+            // A source whose samples were just moved earlier skips those that would
+            // land among the ones it already has (they measured the same stretch):
+            // two interleaved series of one sensor make its readings jump back and
+            // forth, which it never did.
+            if *shift != 0 && t <= *newest {
+                return vec![];
+            }
+            *newest = (*newest).max(t);
+        }
         let key = Key {
             t,
             rank: rank(kind),
@@ -286,7 +358,9 @@ impl Estimator {
             }
             return vec![];
         }
-        let newest = self.newest_t.map_or(t, |n| n.max(t));
+        // The present is the newest time a sample arrived for, not the moment a late
+        // source measured (its shift is how late it is).
+        let newest = self.newest_t.map_or(mapped, |n| n.max(mapped));
         self.newest_t = Some(newest);
         self.lateness
             .get_or_insert_with(src, || Lateness {
@@ -324,6 +398,9 @@ impl Estimator {
         let limit = newest - self.horizon_us();
         let out = self.run_to(limit, fused_to.as_ref());
         self.prune();
+        if kind != SensorKind::Imu {
+            self.adopt_delays();
+        }
         out
     }
 
@@ -498,11 +575,15 @@ impl Estimator {
             // The filter's state at the horizon, brought to the present.
             let e = c.ekf.as_ref()?;
             let t = c.pred_t?;
+            // The attitude turned back by its heading error: the pose's orientation is
+            // in the frame of its position.
+            let heading =
+                nalgebra::UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -e.yaw_error());
             let base = Base {
                 t,
                 p: e.pos(),
                 v: e.vel(),
-                q: c.att.q,
+                q: heading * c.att.q,
                 accel_bias: e.accel_bias(),
                 held: c.imu.last.as_ref().map(|l| (l.t, l.accel)),
                 attitude_known: c.att.known(),
@@ -540,7 +621,19 @@ impl Estimator {
                 .gnss
                 .origin
                 .map(|o| (o.origin_lat_deg, o.origin_lon_deg, o.origin_alt_m)),
+            protection: integrity::protection(c, &self.cfg.integrity),
         })
+    }
+
+    /// The main filter's state and covariance diagonal, with the names of the states
+    /// (for a developer looking at one flight).
+    pub fn filter_state(&self) -> Option<(Vec<f64>, Vec<f64>, Vec<String>)> {
+        let e = self.core.ekf.as_ref()?;
+        Some((
+            e.x.iter().copied().collect(),
+            e.p.diagonal().iter().copied().collect(),
+            e.state_names(),
+        ))
     }
 
     /// Per-source debug series of the last update.
@@ -582,8 +675,8 @@ impl Estimator {
         };
         let c = &mut self.core;
         let d = Vector3::new(-p.x, -p.y, 0.0);
-        if let Some(ekf) = c.ekf.as_mut() {
-            ekf.shift_position(d);
+        if let Some(bank) = c.ekf.as_mut() {
+            bank.each(|ekf| ekf.shift_position(d));
         }
         c.wrls.shift(d);
         c.monitors.shift(d);
@@ -712,6 +805,16 @@ impl Estimator {
                 .filter(|(_, c)| !c.stamps_usable())
                 .filter_map(|(s, c)| c.stamp_rate.map(|r| (s.clone(), r)))
                 .collect(),
+            integrity: status::IntegrityStatus {
+                tests: c.integrity.tests.clone(),
+                excluded: c
+                    .integrity
+                    .excluded
+                    .iter()
+                    .map(|(s, _)| s.clone())
+                    .collect(),
+                exclusions: c.integrity.exclusions,
+            },
         }
     }
 }

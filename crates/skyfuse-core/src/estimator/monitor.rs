@@ -165,6 +165,11 @@ impl Monitors {
             ((p - cf.p).norm(), (v - cf.v).norm())
         };
         self.last = Some((name, pe, ve));
+        if !cfg.monitor_reset {
+            // Watched and shown, not acted on (see `DEFAULT_MONITOR_RESET`).
+            self.diverge_since = None;
+            return None;
+        }
         let pos_bound = cfg.monitor_pos_bound_m.max(3.0 * std_h);
         if pe <= pos_bound && ve <= cfg.monitor_vel_bound_mps {
             self.diverge_since = None;
@@ -212,8 +217,26 @@ mod tests {
     use super::*;
 
     #[test]
-    fn departure_must_last_before_a_reset() {
+    fn by_default_a_monitor_watches_and_resets_nothing() {
         let cfg = EstimatorConfig::default();
+        let mut m = Monitors::default();
+        for i in 0..40 {
+            let t = i * 100_000;
+            m.gps_fix(t, Vector3::new(1.0, 2.0, 3.0), None, true, &cfg);
+            let r = m.check(t, Vector3::new(11.0, 2.0, 3.0), Vector3::zeros(), 0.5, &cfg);
+            assert!(r.is_none(), "reset at {t}");
+        }
+        let (name, departure, _) = m.last.expect("watched");
+        assert_eq!(name, "gps_imu");
+        assert!((departure - 10.0).abs() < 1e-9, "{departure}");
+    }
+
+    #[test]
+    fn departure_must_last_before_a_reset() {
+        let cfg = EstimatorConfig {
+            monitor_reset: true,
+            ..EstimatorConfig::default()
+        };
         let mut m = Monitors::default();
         for i in 0..40 {
             let t = i * 100_000;
@@ -256,7 +279,10 @@ mod tests {
     /// monitor is no reference without an IMU driving it.
     #[test]
     fn a_departure_the_filter_allows_for_or_an_unaided_flow_monitor_resets_nothing() {
-        let cfg = EstimatorConfig::default();
+        let cfg = EstimatorConfig {
+            monitor_reset: true,
+            ..EstimatorConfig::default()
+        };
         let mut m = Monitors::default();
         for i in 0..40 {
             let t = i * 100_000;

@@ -16,6 +16,11 @@ use super::{Core, Ctx, DebugTopic, Event};
 use crate::sample::Odometry;
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
+/// 1σ of an odometry's heading, rad (a T265 holds its heading to a degree over
+/// minutes), and how fast it wanders, rad/√s.
+const VO_YAW_NOISE: f64 = 0.01;
+pub const VO_YAW_RW: f64 = 0.001;
+
 /// Alignment of one segment: world = rot · odom + trans.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Align {
@@ -38,7 +43,12 @@ pub struct OdomState {
     pub need_realign: bool,
     /// Heading of the body in the fused frame from this source (time, yaw).
     pub heading: Option<(i64, f64)>,
+    /// The offset state's value a second ago or more: (time, offset).
+    pub drift_from: Option<(i64, Vector3<f64>)>,
 }
+
+/// How often the odometry frame's drift rate is measured, µs.
+const DRIFT_WINDOW_US: i64 = 1_000_000;
 
 /// The body's pose and velocity from a camera odometry sample.
 #[derive(Debug, Clone, PartialEq)]
@@ -116,7 +126,12 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
     }
     if !core.initialised() {
         let height = core.latest_height(t);
-        let var = Vector3::repeat(cfg.init_pos_var);
+        // A range finder's first reading is often its floor (standing on the gear, a
+        // hair above its minimum): a quarter of it is the height's 1σ until it flies.
+        let mut var = Vector3::repeat(cfg.init_pos_var);
+        if let Some(h) = height {
+            var.z = var.z.max((0.25 * h).powi(2));
+        }
         let v = b.vel_body.map(|vb| core.att.q * vb);
         let v_var = v.map(|_| Vector3::repeat(cfg.vo_vel_noise.powi(2)));
         let z = height.unwrap_or(0.0);
@@ -125,9 +140,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
             // Started with no height measurement (in flight, or the range finder's
             // first sample still to come): where the ground is below this frame is not
             // known, so the first range or ToF sets it instead of being gated out.
-            if let Some(ekf) = core.ekf.as_mut() {
+            if let Some(bank) = core.ekf.as_mut() {
                 let i = super::ekf::IDX_TERRAIN;
-                ekf.p[(i, i)] = super::config::UNKNOWN_TERRAIN_VAR;
+                bank.each(|ekf| ekf.p[(i, i)] = super::config::UNKNOWN_TERRAIN_VAR);
             }
         }
     }
@@ -170,7 +185,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
     let v_odom_now = b.vel_body.map(|vb| b.att * vb);
     let new_segment = reason.is_some();
     if let Some(why) = reason {
-        let yaw_align = wrap_pi(yaw_of(&core.att.q) - yaw_of(&b.att));
+        // The body's heading in the fused frame: the attitude's, less its heading error.
+        let yaw_error = core.ekf.as_ref().map_or(0.0, |e| e.yaw_error());
+        let yaw_align = wrap_pi(yaw_of(&core.att.q) - yaw_error - yaw_of(&b.att));
         let rot = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_align);
         let here = core.position().unwrap_or_else(Vector3::zeros);
         st.align = Some(Align {
@@ -182,8 +199,12 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
         st.segment += 1;
         st.need_realign = false;
         st.reject_since = None;
-        if let Some(ekf) = core.ekf.as_mut() {
-            ekf.start_block(source);
+        st.drift_from = None;
+        if let Some(bank) = core.ekf.as_mut() {
+            bank.each(|ekf| {
+                ekf.start_block(source);
+                ekf.start_align_yaw(source);
+            });
         }
         core.event(
             t,
@@ -233,7 +254,39 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
     let mut r = rm.matrix() * c * rm.matrix().transpose();
     r[(0, 0)] += al.yaw_var * lever;
     r[(1, 1)] += al.yaw_var * lever;
-    let accepted = core.fuse_position(t, source, "odometry", z, &r, Some(source), ctx);
+    // The segment's alignment error ε turns its positions about where it started:
+    // z = p + b + ε·ẑ×d, d the aligned displacement since then.
+    let d = al.rot * (b.pos - al.anchor);
+    let accepted = match core.position_measurement("odometry", z, &r, Some(source)) {
+        Some(mut m) if core.ekf_fuses_sensors(ctx) => {
+            let turned = Vector3::new(-d.y, d.x, 0.0);
+            if let Some(e) = core.ekf.as_ref().and_then(|e| e.align_yaw_of(source)) {
+                let eps = core.ekf.as_ref().map_or(0.0, |k| k.x[e]);
+                for row in 0..2 {
+                    m.set_jacobian(row, e, turned[row]);
+                    m.set_innovation(row, m.innovation()[row] - eps * turned[row]);
+                }
+            }
+            core.update(t, source, "odometry", &m, ctx)
+        }
+        _ => core.fuse_position(t, source, "odometry", z, &r, Some(source), ctx),
+    };
+    // The odometry's heading against the attitude's: ψ_a − ε, what the two disagree by
+    // since the segment started (the compass's wander, seen by a camera that holds its
+    // heading).
+    if core.ekf_fuses_sensors(ctx) {
+        if let Some(ekf) = core.ekf.as_ref() {
+            if let Some(e) = ekf.align_yaw_of(source) {
+                let y = wrap_pi(yaw_of(&core.att.q) - yaw_of(&b.att) - yaw_of(&al.rot));
+                let mut m = Measurement::new(1);
+                m.set_jacobian(0, super::ekf::IDX_YAW, 1.0);
+                m.set_jacobian(0, e, -1.0);
+                m.set_innovation(0, wrap_pi(y - (ekf.yaw_error() - ekf.x[e])));
+                m.set_noise(0, 0, core.att.cov[(2, 2)] + VO_YAW_NOISE * VO_YAW_NOISE);
+                core.update(t, source, "odometry", &m, ctx);
+            }
+        }
+    }
     let direct = core.ekf_fuses_sensors(ctx);
     if let Some(st) = core.odom.get_mut(source) {
         if accepted || !direct {
@@ -242,6 +295,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
             st.reject_since = Some(t);
         }
     }
+    drift_rate(core, t, source);
     // Fuse velocity (body frame).
     if cfg.vo_fuse_velocity {
         if let Some(vb) = b.vel_body {
@@ -251,8 +305,41 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
                     .vel_cov
                     .unwrap_or_else(|| Matrix3::identity() * cfg.vo_vel_noise.powi(2)),
             };
+            // Never better than the configured noise: a camera's velocity is its pose's
+            // derivative (not independent of the position fused beside it) and reports
+            // its own noise, not the errors of its model.
+            let floor = cfg.vo_vel_noise.powi(2);
+            for i in 0..3 {
+                rv[(i, i)] = rv[(i, i)].max(floor);
+            }
             core.fuse_body_velocity(t, source, vb, &mut rv, 3, ctx);
         }
+    }
+}
+
+/// The odometry frame's drift against the fused one over the last second, into the
+/// source's status (health judges it); a new segment starts the measure again.
+fn drift_rate(core: &mut Core, t: i64, source: &str) {
+    let Some(b) = core.ekf.as_ref().and_then(|e| {
+        e.block(source)
+            .map(|i| Vector3::new(e.x[i], e.x[i + 1], e.x[i + 2]))
+    }) else {
+        return;
+    };
+    let Some(st) = core.odom.get_mut(source) else {
+        return;
+    };
+    let segment = st.segment;
+    match st.drift_from {
+        Some((t0, b0)) if t - t0 >= DRIFT_WINDOW_US && t > t0 => {
+            let rate = (b - b0).norm() / ((t - t0) as f64 * 1e-6);
+            st.drift_from = Some((t, b));
+            let stat = core.stat(source);
+            stat.drift_mps = Some(rate);
+            stat.segment = Some(segment);
+        }
+        Some((t0, _)) if t >= t0 => {}
+        _ => st.drift_from = Some((t, b)),
     }
 }
 

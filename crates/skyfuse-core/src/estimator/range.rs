@@ -130,14 +130,19 @@ fn reset_terrain_if_rejected(
     var: f64,
 ) {
     let (h_meas, r) = height_of(core, slant, var);
-    let Some(ekf) = core.ekf.as_mut() else { return };
-    let before = ekf.height_above_terrain();
-    let ratio = ekf.test_ratio(&Measurement::height(h_meas - before, r), ctx.gate(1));
+    let Some(bank) = core.ekf.as_mut() else {
+        return;
+    };
+    let before = bank.height_above_terrain();
+    let ratio = bank.test_ratio(&Measurement::height(h_meas - before, r), ctx.gate(1));
     if ratio <= 1.0 {
         return;
     }
-    let terrain = ekf.x[IDX_P + 2] - h_meas;
-    ekf.reset_terrain(terrain, r);
+    // The terrain of every filter moves under its own height: none of them moves.
+    bank.each(|ekf| {
+        let terrain = ekf.x[IDX_P + 2] - h_meas;
+        ekf.reset_terrain(terrain, r);
+    });
     core.event(
         t,
         Some(source),

@@ -3,11 +3,13 @@
 //! it: gating and recording updates, events, aiding, validity, initialisation.
 
 use super::attitude::{self, AttitudeState};
+use super::bank::Bank;
 use super::ekf::{self, Ekf, Measurement, UpdateOutcome, GRAVITY, IDX_P, IDX_V};
 use super::flow::{self, FlowCalibrator, FlowState};
 use super::gnss::{self, GnssState};
 use super::ground;
 use super::imu::{self, ImuState};
+use super::integrity::{self, Channels, IntegrityState};
 use super::monitor::{MonitorReset, Monitors};
 use super::odometry::{self, OdomState};
 use super::range;
@@ -48,7 +50,14 @@ pub(super) fn kind_str(k: SensorKind) -> &'static str {
 pub(crate) struct Core {
     pub t: Option<i64>,
     pub pred_t: Option<i64>,
-    pub ekf: Option<Ekf>,
+    /// The main filter and its sub-filters ([`Bank`]; reads go to the main one).
+    pub ekf: Option<Bank>,
+    /// The separation tests, exclusions and protection levels ([`integrity`]).
+    pub integrity: IntegrityState,
+    /// The slow part of GNSS's error as the first fix said it, for a filter it starts.
+    pub gnss_bias_prior: Option<Vector3<f64>>,
+    /// After a reset to a refused source: (source, invalid until, accepted since).
+    pub converging: Option<(String, i64, bool)>,
     pub att: AttitudeState,
     pub imu: ImuState,
     pub gnss: GnssState,
@@ -278,12 +287,140 @@ impl Core {
         m: &Measurement,
         ctx: &Ctx,
     ) -> bool {
-        let Some(ekf) = self.ekf.as_mut() else {
+        self.update_with_rate(t, source, kind, m, [0.0; 3], ctx)
+    }
+
+    /// [`Self::update`] of a measurement whose prediction also changes with time by
+    /// `extra` per row beyond what the state's own rates make of it (a body-frame
+    /// velocity turns with the body): part of what its delay does to it.
+    pub(super) fn update_with_rate(
+        &mut self,
+        t: i64,
+        source: &str,
+        kind: &'static str,
+        m: &Measurement,
+        extra: [f64; 3],
+        ctx: &Ctx,
+    ) -> bool {
+        let Some(bank) = self.ekf.as_mut() else {
             return false;
         };
-        let out = ekf.update(m, ctx.gate(m.rows()), false);
+        let gate = ctx.gate(m.rows());
+        if self.integrity.is_excluded(source) {
+            // Excluded by the integrity monitor: tested, not fused, until it agrees
+            // again for long enough.
+            let out = bank.innovation_test(m, gate);
+            let st = self.stat(source);
+            st.count_test(t, out.test_ratio);
+            st.kind = kind;
+            st.test_ratio = out.test_ratio;
+            st.set_innovation(&out);
+            st.last_reject_reason = Some("excluded by the integrity monitor".into());
+            integrity::excluded_sample(self, ctx, t, source, out.accepted);
+            return false;
+        }
+        // A pseudo-measurement (the ground's constraints) is every filter's; an aiding
+        // source has a sub-filter without it.
+        let aiding = !matches!(source, "ground" | "wrls");
+        if aiding && ctx.cfg.integrity.enabled {
+            bank.ensure_sub(source, t);
+        }
+        // A delay is seen against the IMU's prediction: without one driving it (the
+        // constant-velocity stand-in) there is nothing to see it against.
+        let imu_drives = self.imu_drives(t, ctx);
+        let Some(bank) = self.ekf.as_mut() else {
+            return false;
+        };
+        let delayed;
+        let m = if aiding && imu_drives && ctx.cfg.delay_std_s > 0.0 {
+            delayed = with_delay(bank, source, m, extra, ctx.cfg.delay_std_s);
+            &delayed
+        } else {
+            m
+        };
+        let out = bank.update(m, gate, aiding.then_some(source));
+        if out.accepted && aiding {
+            self.integrity.fused(source, Channels::of(m), t);
+            if let Some(c) = self.converging.as_mut().filter(|c| c.0 == source) {
+                c.2 = true;
+            }
+        }
         self.record(t, source, kind, &out, ctx);
+        if !out.accepted && aiding && self.mode_ekf_direct {
+            self.reset_if_locked_out(t, source, m, ctx);
+        }
         out.accepted
+    }
+
+    /// The rule against locking out the only source: a horizontal measurement refused
+    /// while nothing has held the horizontal position or velocity for
+    /// `reject_reset_s` resets the filter to it (its horizontal states forget what
+    /// they knew and take it ungated), as EKF2 and EKF3 reset to a source rejected for
+    /// a while. The reset is counted, said, and the pose invalid until it converges.
+    fn reset_if_locked_out(&mut self, t: i64, source: &str, m: &Measurement, ctx: &Ctx) {
+        let cfg = ctx.cfg;
+        if !Channels::of(m).horizontal {
+            return;
+        }
+        let after = (cfg.reject_reset_s * 1e6) as i64;
+        // A velocity accepted beside a refused position (a GNSS's own) holds it too:
+        // the drift's rate stays bounded, and a receiver's multipath offset lasting
+        // longer than `reject_reset_s` is not reset to (the position's own clock did,
+        // and broke the promise on 2 of the first 20 randomised flights).
+        let last = self.ground.last_h_aiding;
+        let held = last.is_some_and(|l| t - l < after);
+        // Somebody else holds it (another source, or this one a moment ago), or the
+        // vehicle is on the ground and held there.
+        if held || self.ground.active == Some(ground::Constraint::OnGround) {
+            return;
+        }
+        let Some(bank) = self.ekf.as_mut() else {
+            return;
+        };
+        let from = bank.pos();
+        // The horizontal states the measurement reads (a flow: the velocity only; its
+        // position stays as uncertain as it was).
+        let states: Vec<usize> = [IDX_P, IDX_P + 1, IDX_V, IDX_V + 1]
+            .into_iter()
+            .filter(|&i| reads_any(m, &[i]))
+            .collect();
+        // Large against anything a reset could move: the measurement decides.
+        bank.reset_to(m, &states, RESET_FORGET_VAR, t);
+        let moved = bank.pos() - from;
+        let jump = moved.xy().norm();
+        // Which of the two was wrong nobody knows: a GNSS's slow error may be as
+        // large as the jump (multipath that came in over seconds looks exactly so),
+        // and stays as uncertain until the fixes have shown otherwise.
+        if self.stats.get(source).is_some_and(|s| s.kind == "gnss") {
+            bank.each(|e| {
+                for i in 0..2 {
+                    let k = ekf::IDX_BG + i;
+                    e.p[(k, k)] = e.p[(k, k)].max(moved[i] * moved[i]);
+                }
+            });
+        }
+        let rejected_s = last.map_or(cfg.reject_reset_s, |l| (t - l) as f64 * 1e-6);
+        self.reset_counter = self.reset_counter.wrapping_add(1);
+        let until = t + (cfg.reset_converge_s * 1e6) as i64;
+        self.converging = Some((source.to_string(), until, false));
+        for st in self.odom.values_mut() {
+            if st.align.is_some() {
+                st.need_realign = true;
+            }
+        }
+        self.aided(t, self.stats.get(source).map_or("gnss", |s| s.kind));
+        self.event(
+            t,
+            Some(source),
+            format!(
+                "{source}: every horizontal measurement refused for {rejected_s:.1} s with nothing else holding the position: reset to it (moved {jump:.2} m); invalid until it converges"
+            ),
+            Event::Reset(event::Reset::Rejected {
+                reset_counter: self.reset_counter,
+                rejected_s,
+                jump_m: jump,
+            }),
+        );
     }
 
     /// A position measurement (noise `r`), or None without a filter.
@@ -382,6 +519,12 @@ impl Core {
 
     /// The IMU's specific force and its variance held for the prediction at `t`, if a
     /// sample with one is recent enough (`imu_timeout_ms`) to drive it.
+    /// An IMU carries the velocity between aiding samples now (else the
+    /// constant-velocity stand-in does).
+    pub(super) fn imu_drives(&self, t: i64, ctx: &Ctx) -> bool {
+        self.att.known() && self.held_imu(t, ctx).is_some()
+    }
+
     fn held_imu(&self, t: i64, ctx: &Ctx) -> Option<(Vector3<f64>, f64)> {
         let timeout = (ctx.cfg.imu_timeout_ms * 1000.0) as i64;
         self.imu
@@ -416,21 +559,32 @@ impl Core {
         // IMU: −5 % whatever the sensor's error, the fused track worse than the flow
         // integrated). Otherwise it is a consider state: held, its uncertainty carried
         // into every flow sample and, through the covariance, into the position.
-        let imu_drives = self.att.known() && self.held_imu(t, ctx).is_some();
+        let imu_drives = self.imu_drives(t, ctx);
         let observed = imu_drives || self.other_aiding(t, source, ctx);
-        let Some(ekf) = self.ekf.as_mut() else { return };
+        let Some(bank) = self.ekf.as_mut() else {
+            return;
+        };
         // A flow source reads (1 + k)·Rz(ψ) times the body velocity: k its scale error,
         // ψ its heading error (both states of the filter).
-        let errors = (rows == 2 && (scale_var > 0.0 || heading_var > 0.0))
-            .then(|| ekf.scale_state(source, scale_var.max(1e-12), heading_var.max(1e-12)));
+        let errors = (rows == 2 && (scale_var > 0.0 || heading_var > 0.0)).then(|| {
+            bank.each_main(|ekf| {
+                ekf.scale_state(source, scale_var.max(1e-12), heading_var.max(1e-12))
+            })
+        });
+        let ekf = &**bank;
         let (k, psi) = errors.map_or((0.0, 0.0), |i| (ekf.x[i], ekf.x[i + 1]));
         let rot = *self.att.q.to_rotation_matrix().matrix();
-        let rt = rot.transpose();
-        let pred = rt * ekf.vel();
+        // The body sees the world through the true heading: vb = Rᵀ·Rz(ψ_a)·v.
+        let turn = ekf::yaw_rotation(ekf.yaw_error());
+        let rt = rot.transpose() * turn;
+        let v_turned = turn * ekf.vel();
+        let pred = rot.transpose() * v_turned;
+        // d(vb)/dψ_a = Rᵀ·(ẑ × Rz(ψ_a)·v).
+        let dpred_dyaw = rot.transpose() * Vector3::new(-v_turned.y, v_turned.x, 0.0);
         // Attitude error turns the velocity: |v|²·σ² per axis (the roll and pitch part;
         // the heading's lasting part is ψ).
         let att_var = ekf.vel().norm_squared() * self.att.cov.trace() / 3.0;
-        let mut m = odometry::body_velocity_measurement(&rot, rows);
+        let mut m = odometry::body_velocity_measurement(&(turn.transpose() * rot), rows);
         match errors {
             Some(si) => {
                 // h = (1 + k)·(p_x − ψ·p_y, p_y + ψ·p_x), p = Rᵀv.
@@ -445,6 +599,8 @@ impl Core {
                     m.set_jacobian(i, si, turned[i]);
                     let dpsi = if i == 0 { -pred.y } else { pred.x };
                     m.set_jacobian(i, si + 1, (1.0 + k) * dpsi);
+                    let dyaw = dturn_dp[i][0] * dpred_dyaw.x + dturn_dp[i][1] * dpred_dyaw.y;
+                    m.set_jacobian(i, ekf::IDX_YAW, (1.0 + k) * dyaw);
                 }
                 if !observed {
                     m.consider(si);
@@ -453,6 +609,7 @@ impl Core {
             None => {
                 for i in 0..rows {
                     m.set_innovation(i, vb[i] - pred[i]);
+                    m.set_jacobian(i, ekf::IDX_YAW, dpred_dyaw[i]);
                 }
             }
         }
@@ -462,8 +619,20 @@ impl Core {
                 m.set_noise(i, j, r[(i, j)]);
             }
         }
+        // The prediction turns with the body: d(Rᵀv)/dt = Rᵀa − ω × Rᵀv, the second term
+        // beyond the state's rates (the first is the velocity states' own).
+        let omega = self.imu.rate.map_or(Vector3::zeros(), |r| r.1);
+        let spin = -omega.cross(&pred);
+        let mut extra = [0.0; 3];
+        match errors {
+            Some(_) => {
+                extra[0] = (1.0 + k) * (spin.x - psi * spin.y);
+                extra[1] = (1.0 + k) * (spin.y + psi * spin.x);
+            }
+            None => extra = [spin.x, spin.y, spin.z],
+        }
         let kind = if rows == 2 { "flow" } else { "odometry" };
-        self.update(t, source, kind, &m, ctx);
+        self.update_with_rate(t, source, kind, &m, extra, ctx);
     }
 
     /// Fuse a height above the terrain: h = p_z − z_t.
@@ -557,16 +726,29 @@ impl Core {
             ekf.terrain_gradient = cfg.terrain_gradient;
             ekf.scale_rw = cfg.flow_scale_rw;
             ekf.heading_rw = cfg.flow_heading_rw;
+            // The slow part of GNSS's error, until a fix says how large it is.
             let (b, bv) = (cfg.gnss_bias_std_m, cfg.gnss_bias_std_v_m);
-            ekf.set_gnss_bias_model(Vector3::new(b, b, bv), cfg.gnss_bias_tau_s);
-            if self.stats.get(source).is_some_and(|s| s.kind == "gnss")
-                || self.gnss.origin.is_some()
-            {
+            let bias = self.gnss_bias_prior.unwrap_or(Vector3::new(b, b, bv));
+            ekf.set_gnss_bias_model(bias, cfg.gnss_bias_tau_s);
+            ekf.delay_rw = cfg.delay_rw;
+            ekf.align_yaw_rw = super::odometry::VO_YAW_RW;
+            let geographic = self.stats.get(source).is_some_and(|s| s.kind == "gnss")
+                || self.gnss.origin.is_some();
+            // Against north (GNSS) the heading is as good as the compass; in a frame of
+            // its own that starts at the take-off heading, as good as that instant's.
+            let yaw_prior = if geographic {
+                cfg.yaw_error_std
+            } else {
+                super::config::OWN_FRAME_YAW_STD.min(cfg.yaw_error_std)
+            };
+            ekf.set_yaw_error_model(cfg.yaw_error_std, cfg.yaw_error_tau_s, yaw_prior);
+            if geographic {
                 // Started from a fix: the ground's height in that frame is as uncertain
                 // as the fix's altitude.
                 ekf.p[(ekf::IDX_TERRAIN, ekf::IDX_TERRAIN)] = pos_var.z;
             }
-            self.ekf = Some(ekf);
+            self.ekf = Some(Bank::new(ekf));
+            self.integrity = IntegrityState::default();
         }
         self.pred_t = Some(t);
         self.wrls.init(t, pos, pos_var);
@@ -660,8 +842,16 @@ impl Core {
             .map_or(Vector3::zeros(), |e| e.accel_bias());
         let a_world = rot * (f_body - ba) - Vector3::new(0.0, 0.0, GRAVITY);
         self.monitors.predict(a_world, dt, imu_drives);
-        if let Some(ekf) = self.ekf.as_mut() {
-            ekf.predict(f_body, &rot, dt, var, bias_rw, drift);
+        let velocity_tau_s = if imu_drives {
+            f64::INFINITY
+        } else {
+            NO_IMU_VELOCITY_TAU_S
+        };
+        if let Some(bank) = self.ekf.as_mut() {
+            bank.each(|ekf| {
+                ekf.velocity_tau_s = velocity_tau_s;
+                ekf.predict(f_body, &rot, dt, var, bias_rw, drift)
+            });
         }
     }
 
@@ -705,6 +895,9 @@ impl Core {
     pub(super) fn post(&mut self, t: i64, ctx: &Ctx) {
         let cfg = ctx.cfg;
         ground::control(self, ctx, t);
+        if cfg.integrity.enabled && self.mode_ekf_direct {
+            integrity::check(self, ctx, t);
+        }
         let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
         if self.unaided_since.is_none() && self.initialised() {
             if let Some(l) = self.last_aiding.filter(|l| t - l > timeout) {
@@ -792,8 +985,8 @@ impl Core {
         } else {
             Vector3::new(reset(0), reset(1), reset(2))
         };
-        if let Some(ekf) = self.ekf.as_mut() {
-            ekf.reset_pos_vel(pos, Some(vel), pos_var, cfg.reset_vel_var);
+        if let Some(bank) = self.ekf.as_mut() {
+            bank.each(|ekf| ekf.reset_pos_vel(pos, Some(vel), pos_var, cfg.reset_vel_var));
         }
         self.wrls.reset(pos, pos_var);
         for st in self.odom.values_mut() {
@@ -862,6 +1055,13 @@ impl Core {
         if self.ground.handled(t) {
             return Some(Invalid::Carried);
         }
+        if self
+            .converging
+            .as_ref()
+            .is_some_and(|(_, until, accepted)| t < *until || !accepted)
+        {
+            return Some(Invalid::Converging);
+        }
         // A height alone (a range finder) leaves the horizontal position dead-reckoned.
         match self.last_h_valid {
             Some(l) if t - l <= timeout => {}
@@ -875,9 +1075,53 @@ impl Core {
         if var.iter().any(|v| !v.is_finite() || *v > max) {
             return Some(Invalid::Uncertain);
         }
+        let pl = integrity::protection(self, &cfg.integrity);
+        if !(pl.horizontal_m <= pl.horizontal_alert_m && pl.vertical_m <= pl.vertical_alert_m) {
+            return Some(Invalid::Protection);
+        }
         None
     }
 }
+
+/// `m` from `source` with the source's delay τ in it: it measured the state of τ
+/// ago, `h(x(t − τ)) ≈ h(x) − τ·dh/dt`, dh/dt from the velocity (what a position
+/// reads) and the last prediction's acceleration (what a velocity reads). The delay
+/// is a state of every filter (added with prior 1σ `prior_std` s on first use), seen
+/// when what the source measures changes, and its uncertainty is in the innovation's.
+fn with_delay(
+    bank: &mut Bank,
+    source: &str,
+    m: &Measurement,
+    extra: [f64; 3],
+    prior_std: f64,
+) -> Measurement {
+    let idx = bank.each_main(|e| e.delay_state(source, prior_std * prior_std));
+    let (v, a, tau) = (bank.vel(), bank.accel_world, bank.x[idx]);
+    let mut out = *m;
+    for (row, extra) in extra.iter().enumerate().take(m.rows()) {
+        let rate: f64 = extra
+            + m.jacobian_row(row)
+                .entries()
+                .map(|(k, h)| match k {
+                    k if (IDX_P..IDX_P + 3).contains(&k) => h * v[k - IDX_P],
+                    k if (IDX_V..IDX_V + 3).contains(&k) => h * a[k - IDX_V],
+                    _ => 0.0,
+                })
+                .sum::<f64>();
+        out.set_jacobian(row, idx, -rate);
+        out.set_innovation(row, m.innovation()[row] + rate * tau);
+    }
+    out
+}
+
+/// Without an IMU, how long a multicopter's velocity stays what it was, s: with the
+/// stand-in's acceleration noise (`no_imu_accel_noise`, 3 m/s²) its speed's 1σ at rest is
+/// about 3 m/s.
+const NO_IMU_VELOCITY_TAU_S: f64 = 10.0;
+
+/// The variance the reset states take before the measurement they reset to, m² or
+/// (m/s)²: far larger than any jump, so the measurement alone decides.
+const RESET_FORGET_VAR: f64 = 1e6;
 
 /// Why the estimate is not valid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -889,10 +1133,12 @@ pub(super) enum Invalid {
     Carried,
     NoHorizontal,
     Uncertain,
+    Protection,
+    Converging,
 }
 
 impl Invalid {
-    const ALL: [Invalid; 7] = [
+    const ALL: [Invalid; 9] = [
         Invalid::NotInitialised,
         Invalid::NonFinite,
         Invalid::NoAttitude,
@@ -900,6 +1146,8 @@ impl Invalid {
         Invalid::Carried,
         Invalid::NoHorizontal,
         Invalid::Uncertain,
+        Invalid::Protection,
+        Invalid::Converging,
     ];
 
     fn text(self, cfg: &EstimatorConfig) -> String {
@@ -921,6 +1169,14 @@ impl Invalid {
             Invalid::Uncertain => {
                 format!("position uncertainty above {} m (1σ)", cfg.max_pos_std_m)
             }
+            Invalid::Converging => format!(
+                "reset to a source that was refused for {} s: converging",
+                cfg.reject_reset_s
+            ),
+            Invalid::Protection => format!(
+                "protection level above the alert limit ({} m horizontal, {} m vertical)",
+                cfg.integrity.horizontal_alert_m, cfg.integrity.vertical_alert_m
+            ),
         }
     }
 }
@@ -928,7 +1184,7 @@ impl Invalid {
 /// The reasons' texts, with the config's limits in them, made once: a pose is asked for
 /// with every sample, and is invalid for whole phases of a flight (on the ground).
 #[derive(Debug, Clone)]
-pub(super) struct InvalidTexts([String; 7]);
+pub(super) struct InvalidTexts([String; 9]);
 
 impl InvalidTexts {
     pub(super) fn new(cfg: &EstimatorConfig) -> Self {
@@ -938,4 +1194,13 @@ impl InvalidTexts {
     pub(super) fn get(&self, why: Invalid) -> String {
         self.0[why as usize].clone()
     }
+}
+
+/// `m` reads one of `states` (a row's Jacobian has it).
+fn reads_any(m: &Measurement, states: &[usize]) -> bool {
+    (0..m.rows()).any(|r| {
+        m.jacobian_row(r)
+            .entries()
+            .any(|(k, _)| states.contains(&k))
+    })
 }

@@ -28,6 +28,27 @@ pub struct FusedPose {
     pub invalid_reason: Option<String>,
     /// Geodetic (lat, lon, alt) of the ENU origin if GNSS set it.
     pub origin: Option<(f64, f64, f64)>,
+    /// The bound the pose is sent with: its true error is inside it (see
+    /// `estimator::integrity`).
+    pub protection: Protection,
+}
+
+/// The integrity monitor as the status shows it.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct IntegrityStatus {
+    pub tests: Vec<super::integrity::SeparationTest>,
+    pub excluded: Vec<String>,
+    pub exclusions: u64,
+}
+
+/// Protection levels: horizontal and vertical bounds on the position error, m, and the
+/// alert limits they are held to ("valid" means both are under theirs).
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
+pub struct Protection {
+    pub horizontal_m: f64,
+    pub vertical_m: f64,
+    pub horizontal_alert_m: f64,
+    pub vertical_alert_m: f64,
 }
 
 /// The estimator's debug series: the seed's rqt_plot topics (named as the seed names
@@ -147,6 +168,12 @@ pub struct SourceStatus {
     pub last_reject_reason: Option<String>,
     pub usable: bool,
     pub segment: Option<u32>,
+    /// An odometry's frame drifting against the fused one, m/s over the last second
+    /// (its offset state's change): a camera that lost track slides at decimetres a
+    /// second, which its offset's random walk absorbs sample by sample without one
+    /// large innovation.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drift_mps: Option<f64>,
 }
 
 impl SourceStatus {
@@ -217,4 +244,7 @@ pub struct EstimatorStatus {
     /// Sources whose stamps do not run at the host's rate (measured rate), timed by
     /// arrival instead (see `timing`).
     pub timed_by_arrival: BTreeMap<String, f64>,
+    /// The integrity monitor: each sub-filter's separation test, the sources excluded
+    /// now and how many exclusions so far.
+    pub integrity: IntegrityStatus,
 }

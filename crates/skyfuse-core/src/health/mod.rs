@@ -79,6 +79,9 @@ pub struct HealthConfig {
     /// Innovation test ratio that warns (degraded) and that rejects (failed).
     pub test_ratio_warn: f64,
     pub test_ratio_fail: f64,
+    /// An odometry's frame drifting faster than this against the fused estimate
+    /// degrades it, m/s.
+    pub vo_drift_warn_mps: f64,
     /// Estimator: position 1σ above this degrades the estimator, m.
     pub estimator_max_std_m: f64,
 }
@@ -128,6 +131,9 @@ pub const DEFAULT_VO_IMU_SPEED_MPS: f64 = 0.3;
 pub const DEFAULT_VO_IMU_WINDOW_MS: f64 = 3000.0;
 pub const DEFAULT_TEST_RATIO_WARN: f64 = 0.5;
 pub const DEFAULT_TEST_RATIO_FAIL: f64 = 1.0;
+/// A T265 holding track drifts by centimetres a second; one that lost it slides by
+/// decimetres.
+pub const DEFAULT_VO_DRIFT_WARN_MPS: f64 = 0.1;
 pub const DEFAULT_ESTIMATOR_MAX_STD_M: f64 = 2.0;
 
 impl Default for HealthConfig {
@@ -157,6 +163,7 @@ impl Default for HealthConfig {
             vo_imu_window_ms: DEFAULT_VO_IMU_WINDOW_MS,
             test_ratio_warn: DEFAULT_TEST_RATIO_WARN,
             test_ratio_fail: DEFAULT_TEST_RATIO_FAIL,
+            vo_drift_warn_mps: DEFAULT_VO_DRIFT_WARN_MPS,
             estimator_max_std_m: DEFAULT_ESTIMATOR_MAX_STD_M,
         }
     }
@@ -172,6 +179,7 @@ impl HealthConfig {
             ("stale_min_ms", self.stale_min_ms),
             ("gnss_max_speed", self.gnss_max_speed),
             ("test_ratio_fail", self.test_ratio_fail),
+            ("vo_drift_warn_mps", self.vo_drift_warn_mps),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(format!("health.{k} = {v} must be positive"));
@@ -219,6 +227,9 @@ pub struct SensorHealth {
 
 /// Time constant of the low-passed test ratio that raises warnings, s.
 const TEST_RATIO_TAU_S: f64 = 1.0;
+
+/// Health reasons that only say a source disagrees with the estimate.
+pub const INNOVATION_CODES: [&str; 2] = ["innovation_rejected", "innovation_high"];
 
 /// A state change, for the event log.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -333,6 +344,34 @@ impl HealthMonitor {
         self.sensors.get(id).is_none_or(|s| s.state.usable())
     }
 
+    /// Whether the estimator may fuse `id`, whatever its disagreement with the
+    /// estimate: a source failed only for its innovations stays the estimator's to
+    /// judge (its gate, the integrity monitor's exclusion, the rule against locking out
+    /// the only source). Taken away by health, it could never show that the estimate,
+    /// not the source, had gone wrong.
+    pub fn fusable(&self, id: &str) -> bool {
+        let Some(s) = self.sensors.get(id) else {
+            return true;
+        };
+        if !s.state.usable() && s.conditions.is_empty() {
+            // No data, stale, disabled: nothing to fuse anyway.
+            return false;
+        }
+        if matches!(
+            s.state,
+            HealthState::NoData | HealthState::Stale | HealthState::Disabled
+        ) {
+            return false;
+        }
+        s.conditions
+            .iter()
+            .filter(|(code, _)| !INNOVATION_CODES.contains(*code))
+            .map(|(_, c)| c.state)
+            .max_by_key(|st| st.rank())
+            .unwrap_or(HealthState::Ok)
+            .usable()
+    }
+
     /// A sample arrived and passed decoding (time `t`: host µs).
     pub fn on_sample(&mut self, s: &Sample, t: i64) {
         let cfg = &self.cfg;
@@ -423,6 +462,19 @@ impl HealthMonitor {
             // Only judge a test ratio that is fresh.
             if src.last_time_us.is_none_or(|lt| t - lt > 500_000) || src.innovation.is_empty() {
                 continue;
+            }
+            if let Some(d) = src.drift_mps.filter(|d| *d > cfg.vo_drift_warn_mps) {
+                h.raise(
+                    Observation {
+                        code: "vo_drift",
+                        state: HealthState::Degraded,
+                        text: format!(
+                            "odometry frame drifting at {d:.2} m/s against the fused estimate (> {} m/s)",
+                            cfg.vo_drift_warn_mps
+                        ),
+                    },
+                    t,
+                );
             }
             let lp = match h.test_ratio_lp {
                 Some((t0, v)) if t > t0 => {

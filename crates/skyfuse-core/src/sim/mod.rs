@@ -6,6 +6,8 @@
 
 pub mod dataflash;
 pub mod faults;
+pub mod monte_carlo;
+pub mod plan;
 pub mod scenario;
 pub mod sensors;
 pub mod truth;

@@ -98,17 +98,21 @@ const RANGE_MAX: f64 = 12.0;
 const BARO_NOISE: f64 = 0.1;
 /// Barometer slow error random walk, m/√s.
 const BARO_DRIFT_RW: f64 = 0.01;
-const GPS_H_NOISE: f64 = 0.35;
-const GPS_V_NOISE: f64 = 0.7;
-/// GPS slow error (multipath, atmosphere) random walk, m/√s.
-const GPS_BIAS_RW: f64 = 0.05;
-const GPS_H_VAR: f64 = 0.6;
-const GPS_V_VAR: f64 = 1.8;
+/// The accuracy a u-blox M8 reports standing in the open (hAcc, vAcc as 1σ), m.
+const GPS_H_STD: f64 = 0.77;
+const GPS_V_STD: f64 = 1.34;
+/// How much of it is the slow error (multipath, atmosphere, orbits: a Gauss–Markov
+/// wander), the rest white noise: what it reports is what it does.
+const GPS_SLOW_FRACTION: f64 = 0.85;
+/// Correlation time of the slow error, s.
+const GPS_BIAS_TAU_S: f64 = 120.0;
 
-/// What the simulated vehicle carries where scenarios differ: the range finder's
-/// limits, whether the flow module has its own ToF, the flow's scale error. The
-/// default is the demo vehicle (a TFmini-class range finder to 12 m, a flow module
-/// with a ToF).
+/// What the simulated vehicle carries where scenarios differ, and how its sensors err
+/// beyond their white noise: the range finder's limits, whether the flow module has
+/// its own ToF, the flow's scale error and mounting, the IMU's biases, the autopilot's
+/// heading error, the barometer's and the GNSS's slow errors. The default is the demo
+/// vehicle (a TFmini-class range finder to 12 m, a flow module with a ToF, small
+/// biases, no heading error); the Monte Carlo runs draw the rest.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hardware {
     pub range_min_m: f64,
@@ -124,6 +128,101 @@ pub struct Hardware {
     pub flow_scale: f64,
     /// The flow's integration interval, s (1 / its rate for an integrating sensor).
     pub flow_integration_s: f64,
+    /// The flow sensor is mounted turned by this about the body's vertical, rad: its
+    /// axes (rates and gyro alike) are the body's turned by it.
+    pub flow_mount_yaw_rad: f64,
+    /// The flow's rate noise 1σ, rad/s.
+    pub flow_rate_noise: f64,
+    /// Accelerometer and gyro biases (body FLU); `None`: the small ones drawn from the
+    /// seed (a calibrated hobby-grade IMU).
+    pub accel_bias: Option<Vector3<f64>>,
+    pub gyro_bias: Option<Vector3<f64>>,
+    /// The autopilot's heading error (a magnetometer near steel or currents): every
+    /// attitude it reports, the IMU message's included, is turned about the vertical
+    /// by `bias + amplitude · sin(2πt / period + phase)`, rad.
+    pub yaw_error: YawError,
+    /// The barometer's slow error: random walk, m/√s; a step while airborne (the
+    /// propellers' wash on the static port), m; and an error growing with the
+    /// horizontal speed squared (dynamic pressure), m per (m/s)².
+    pub baro_drift_rw: f64,
+    pub baro_wash_m: f64,
+    pub baro_speed_coef: f64,
+    /// A visual odometry's drift random walk, m/√s.
+    pub vio_drift_rw: f64,
+    /// The accuracy the GNSS receiver reports, horizontal and vertical 1σ, m, and what
+    /// its error really is: that much, a `GPS_SLOW_FRACTION` of it wandering with this
+    /// correlation time, s.
+    pub gnss_std_m: (f64, f64),
+    pub gnss_bias_tau_s: f64,
+    /// GNSS multipath: an offset that ramps in and out over a few seconds, not
+    /// reported in the accuracy.
+    pub gnss_multipath: [Multipath; 3],
+    /// Stretches over dark or featureless ground: the flow's quality drops and it reads
+    /// slow and noisy.
+    pub dark_ground: [DarkGround; 3],
+}
+
+/// A heading error that wanders slowly (see [`Hardware::yaw_error`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct YawError {
+    pub bias_rad: f64,
+    pub amplitude_rad: f64,
+    pub period_s: f64,
+    pub phase_rad: f64,
+}
+
+impl YawError {
+    pub fn at(&self, t: f64) -> f64 {
+        let wave = if self.period_s > 0.0 {
+            (2.0 * std::f64::consts::PI * t / self.period_s + self.phase_rad).sin()
+        } else {
+            0.0
+        };
+        self.bias_rad + self.amplitude_rad * wave
+    }
+}
+
+/// One GNSS multipath episode: `offset` (ENU, m) over `[start_s, start_s + duration_s)`,
+/// ramping in and out over [`MULTIPATH_RAMP_S`]. A zero duration is none.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Multipath {
+    pub start_s: f64,
+    pub duration_s: f64,
+    pub offset: [f64; 3],
+}
+
+/// How long a multipath offset takes to come and go, s.
+pub const MULTIPATH_RAMP_S: f64 = 2.0;
+
+impl Multipath {
+    fn at(&self, t: f64) -> Vector3<f64> {
+        if self.duration_s <= 0.0 {
+            return Vector3::zeros();
+        }
+        let x = ((t - self.start_s) / MULTIPATH_RAMP_S)
+            .min((self.start_s + self.duration_s - t) / MULTIPATH_RAMP_S)
+            .clamp(0.0, 1.0);
+        Vector3::from(self.offset) * x
+    }
+}
+
+/// Dark or featureless ground over `[start_s, start_s + duration_s)`: the flow's
+/// quality is drawn in `quality` (its sensor still calls much of it good), it reads
+/// `scale` times the truth, and its noise is `noise_factor` times the usual. A zero
+/// duration is none.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct DarkGround {
+    pub start_s: f64,
+    pub duration_s: f64,
+    pub quality: (u8, u8),
+    pub scale: f64,
+    pub noise_factor: f64,
+}
+
+impl DarkGround {
+    fn active(&self, t: f64) -> bool {
+        self.duration_s > 0.0 && (self.start_s..self.start_s + self.duration_s).contains(&t)
+    }
 }
 
 impl Default for Hardware {
@@ -136,6 +235,19 @@ impl Default for Hardware {
             // No flow sensor reads its scale exactly: this one is 3 % fast.
             flow_scale: DEFAULT_FLOW_SCALE,
             flow_integration_s: 0.02,
+            flow_mount_yaw_rad: 0.0,
+            flow_rate_noise: FLOW_RATE_NOISE,
+            accel_bias: None,
+            gyro_bias: None,
+            yaw_error: YawError::default(),
+            baro_drift_rw: BARO_DRIFT_RW,
+            baro_wash_m: 0.0,
+            baro_speed_coef: 0.0,
+            vio_drift_rw: T265_DRIFT_RW,
+            gnss_std_m: (GPS_H_STD, GPS_V_STD),
+            gnss_bias_tau_s: GPS_BIAS_TAU_S,
+            gnss_multipath: [Multipath::default(); 3],
+            dark_ground: [DarkGround::default(); 3],
         }
     }
 }
@@ -257,13 +369,27 @@ impl SensorModels {
         q * UnitQuaternion::from_scaled_axis(n3(&mut self.rng, ORIENTATION_NOISE))
     }
 
+    /// The attitude the autopilot reports: the truth turned by its heading error, with
+    /// noise.
+    fn reported_attitude(&mut self, s: &TruthState) -> UnitQuaternion<f64> {
+        let yaw_error = self.hardware.yaw_error.at(s.t);
+        let q = if yaw_error == 0.0 {
+            s.attitude
+        } else {
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_error) * s.attitude
+        };
+        self.noisy_attitude(q)
+    }
+
     pub fn imu(&mut self, s: &TruthState) -> Imu {
-        let gyro = s.body_rate + self.gyro_bias + n3(&mut self.rng, GYRO_NOISE);
-        let accel = s.specific_force() + self.accel_bias + n3(&mut self.rng, ACCEL_NOISE);
+        let gyro_bias = self.hardware.gyro_bias.unwrap_or(self.gyro_bias);
+        let accel_bias = self.hardware.accel_bias.unwrap_or(self.accel_bias);
+        let gyro = s.body_rate + gyro_bias + n3(&mut self.rng, GYRO_NOISE);
+        let accel = s.specific_force() + accel_bias + n3(&mut self.rng, ACCEL_NOISE);
         Imu {
             gyro: Some(gyro),
             accel: Some(accel),
-            orientation: Some(self.noisy_attitude(s.attitude)),
+            orientation: Some(self.reported_attitude(s)),
             gyro_cov: Some(Box::new(Matrix3::identity() * GYRO_NOISE * GYRO_NOISE)),
             accel_cov: Some(Box::new(Matrix3::identity() * ACCEL_NOISE * ACCEL_NOISE)),
             orientation_cov: Some(Box::new(
@@ -274,7 +400,7 @@ impl SensorModels {
 
     pub fn attitude(&mut self, s: &TruthState) -> Attitude {
         Attitude {
-            orientation: self.noisy_attitude(s.attitude),
+            orientation: self.reported_attitude(s),
             rates: Some(s.body_rate + n3(&mut self.rng, GYRO_NOISE)),
         }
     }
@@ -286,7 +412,7 @@ impl SensorModels {
     fn t265_with(&mut self, s: &TruthState, started: &[Fault]) -> Odometry {
         if let Some(last) = self.t265_last_t {
             let dt = (s.t - last).max(0.0);
-            self.t265_drift += n3(&mut self.rng, T265_DRIFT_RW * dt.sqrt());
+            self.t265_drift += n3(&mut self.rng, self.hardware.vio_drift_rw * dt.sqrt());
         }
         self.t265_last_t = Some(s.t);
         let (mut p0, mut q0) = self.t265_origin;
@@ -351,16 +477,26 @@ impl SensorModels {
     pub fn flow(&mut self, s: &TruthState) -> OpticalFlow {
         // A downward camera at slant range d sees rotation (the body rate) plus
         // translation v/d; in FLU: rate = ω_xy + (v_y, -v_x)/d.
+        let hw = self.hardware;
         let d = Self::slant_range(s).max(0.05);
-        let v = s.body_velocity() * self.hardware.flow_scale;
-        let rate = Vector2::new(s.body_rate.x + v.y / d, s.body_rate.y - v.x / d)
-            + Vector2::new(
-                n(&mut self.rng, FLOW_RATE_NOISE),
-                n(&mut self.rng, FLOW_RATE_NOISE),
-            );
+        let dark = hw.dark_ground.iter().find(|g| g.active(s.t)).copied();
+        let scale = hw.flow_scale * dark.map_or(1.0, |g| g.scale);
+        let noise = hw.flow_rate_noise * dark.map_or(1.0, |g| g.noise_factor);
+        let v = s.body_velocity() * scale;
+        let body = Vector2::new(s.body_rate.x + v.y / d, s.body_rate.y - v.x / d);
+        // The sensor's axes are the body's turned by its mounting.
+        let (sn, cs) = (-hw.flow_mount_yaw_rad).sin_cos();
+        let rate = Vector2::new(cs * body.x - sn * body.y, sn * body.x + cs * body.y)
+            + Vector2::new(n(&mut self.rng, noise), n(&mut self.rng, noise));
         // On the ground the lens is too close to focus: quality collapses.
         let quality = if s.position.z < 0.08 {
             20
+        } else if let Some(g) = dark {
+            let (lo, hi) = (
+                f64::from(g.quality.0),
+                f64::from(g.quality.1.max(g.quality.0)),
+            );
+            (lo + (hi - lo) * self.uniform()).round() as u8
         } else {
             (200.0 + n(&mut self.rng, 15.0)).clamp(120.0, 255.0) as u8
         };
@@ -412,10 +548,19 @@ impl SensorModels {
     pub fn baro(&mut self, s: &TruthState) -> Baro {
         if let Some(last) = self.baro_last_t {
             let dt = (s.t - last).max(0.0);
-            self.baro_bias += n(&mut self.rng, BARO_DRIFT_RW * dt.sqrt());
+            self.baro_bias += n(&mut self.rng, self.hardware.baro_drift_rw * dt.sqrt());
         }
         self.baro_last_t = Some(s.t);
-        let h = HOME_ALT + s.position.z + self.baro_bias + n(&mut self.rng, BARO_NOISE);
+        let hw = self.hardware;
+        let airborne = s.position.z > 0.3;
+        let wash = if airborne { hw.baro_wash_m } else { 0.0 };
+        let dynamic = hw.baro_speed_coef * s.velocity.xy().norm_squared();
+        let h = HOME_ALT
+            + s.position.z
+            + self.baro_bias
+            + wash
+            + dynamic
+            + n(&mut self.rng, BARO_NOISE);
         Baro {
             pressure_pa: 101_325.0 * (1.0 - h / 44_330.769).powf(1.0 / 0.190_263),
             temperature_c: Some(25.0),
@@ -424,14 +569,24 @@ impl SensorModels {
     }
 
     pub fn gps(&mut self, s: &TruthState) -> GnssFix {
-        if let Some(last) = self.gps_last_t {
-            let dt = (s.t - last).max(0.0);
-            self.gps_bias += n3(&mut self.rng, GPS_BIAS_RW * dt.sqrt());
-            // Keep the slow error bounded, as real multipath is.
-            self.gps_bias *= 0.995;
+        let (h, v) = self.hardware.gnss_std_m;
+        let slow = Vector3::new(h, h, v) * GPS_SLOW_FRACTION.sqrt();
+        let white = Vector3::new(h, h, v) * (1.0 - GPS_SLOW_FRACTION).sqrt();
+        // The slow error: Gauss–Markov, started in its stationary spread.
+        let wander = |rng: &mut SmallRng, phi: f64| {
+            let k = (1.0 - phi * phi).max(0.0).sqrt();
+            Vector3::new(n(rng, slow.x * k), n(rng, slow.y * k), n(rng, slow.z * k))
+        };
+        match self.gps_last_t {
+            Some(last) => {
+                let dt = (s.t - last).max(0.0);
+                let phi = (-dt / self.hardware.gnss_bias_tau_s.max(1.0)).exp();
+                self.gps_bias = self.gps_bias * phi + wander(&mut self.rng, phi);
+            }
+            None => self.gps_bias = wander(&mut self.rng, 0.0),
         }
         self.gps_last_t = Some(s.t);
-        let cov = Matrix3::from_diagonal(&Vector3::new(GPS_H_VAR, GPS_H_VAR, GPS_V_VAR));
+        let cov = Matrix3::from_diagonal(&Vector3::new(h * h, h * h, v * v));
         if s.indoor {
             let (lat, lon, alt) = self.last_fix;
             return GnssFix {
@@ -448,11 +603,14 @@ impl SensorModels {
             };
         }
         let noise = Vector3::new(
-            n(&mut self.rng, GPS_H_NOISE),
-            n(&mut self.rng, GPS_H_NOISE),
-            n(&mut self.rng, GPS_V_NOISE),
+            n(&mut self.rng, white.x),
+            n(&mut self.rng, white.y),
+            n(&mut self.rng, white.z),
         );
-        let (lat, lon, alt) = self.origin.to_geodetic(s.position + self.gps_bias + noise);
+        let multipath: Vector3<f64> = self.hardware.gnss_multipath.iter().map(|m| m.at(s.t)).sum();
+        let (lat, lon, alt) = self
+            .origin
+            .to_geodetic(s.position + self.gps_bias + multipath + noise);
         self.last_fix = (lat, lon, alt);
         GnssFix {
             lat_deg: lat,

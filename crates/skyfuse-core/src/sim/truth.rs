@@ -36,7 +36,7 @@ pub struct TruthState {
 }
 
 /// Smooth step 0→1 over [0,1] with zero first and second derivatives at both ends.
-fn smoothstep5(x: f64) -> f64 {
+pub(crate) fn smoothstep5(x: f64) -> f64 {
     let x = x.clamp(0.0, 1.0);
     x * x * x * (10.0 - 15.0 * x + 6.0 * x * x)
 }
@@ -48,7 +48,7 @@ fn envelope(t: f64) -> f64 {
 }
 
 /// The shape of the flight.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Profile {
     /// Take-off, figure-eight with an indoor stretch (70–100 s) without GPS, landing.
     Demo,
@@ -65,6 +65,8 @@ pub enum Profile {
     /// A long outdoor flight at cruise speed (a [`LAP_RADIUS_M`] circle at
     /// [`LAP_SPEED`]) at [`LAP_HEIGHT_M`]: a low-rate flow sensor over open ground.
     Laps,
+    /// A drawn flight (the Monte Carlo runs), outdoors throughout.
+    Plan(super::plan::FlightPlan),
 }
 
 /// Height of the [`Profile::HighHover`] flight, m.
@@ -92,6 +94,7 @@ pub fn loop_s(profile: Profile) -> f64 {
     match profile {
         Profile::HighHover => HIGH_LOOP_S,
         Profile::Laps => LAP_LOOP_S,
+        Profile::Plan(p) => p.loop_s(),
         Profile::Demo | Profile::Figure8 | Profile::Indoor | Profile::Hover => LOOP_S,
     }
 }
@@ -107,6 +110,7 @@ fn height_profile(t: f64, height: f64, climbed: f64, descent: f64, landed: f64) 
 fn position_at(profile: Profile, t_loop: f64) -> Vector3<f64> {
     let t = t_loop;
     match profile {
+        Profile::Plan(p) => return p.position(t),
         Profile::HighHover => {
             let z = height_profile(t, HIGH_HOVER_M, HIGH_CLIMBED, HIGH_DESCENT, HIGH_LANDED);
             // Gusts: two slow periods per axis, the wander fading in once up.
@@ -195,6 +199,7 @@ fn yaw_at(profile: Profile, t: f64) -> f64 {
     match profile {
         // Nose along the track, as a vehicle cruising forward flies.
         Profile::Laps => 0.4 + lap_distance(t) / LAP_RADIUS_M,
+        Profile::Plan(p) => p.yaw(t),
         _ => 0.4 + 0.5 * (2.0 * PI * t / 45.0).sin() * envelope(t),
     }
 }
@@ -216,7 +221,11 @@ pub fn truth(t: f64) -> TruthState {
 /// Truth of a flight `profile` at time `t` seconds since the start (loops every [`LOOP_S`]).
 pub fn truth_of(profile: Profile, t: f64) -> TruthState {
     let position_at = |t: f64| position_at(profile, t);
-    let tl = t.rem_euclid(loop_s(profile));
+    // The demo's flights repeat; a drawn one stays where it landed.
+    let tl = match profile {
+        Profile::Plan(p) => t.clamp(0.0, p.loop_s()),
+        _ => t.rem_euclid(loop_s(profile)),
+    };
     let h = 1e-3;
     let p0 = position_at(tl - h);
     let p1 = position_at(tl);
@@ -242,7 +251,11 @@ pub fn truth_of(profile: Profile, t: f64) -> TruthState {
         indoor: match profile {
             Profile::Demo => (T_INDOOR..T_OUTDOOR_AGAIN).contains(&tl),
             Profile::Indoor => true,
-            Profile::Figure8 | Profile::Hover | Profile::HighHover | Profile::Laps => false,
+            Profile::Figure8
+            | Profile::Hover
+            | Profile::HighHover
+            | Profile::Laps
+            | Profile::Plan(_) => false,
         },
     }
 }

@@ -1,0 +1,212 @@
+//! The bank of filters: the main filter, fed by every usable source, and one
+//! sub-filter per aiding source that is fed by all the others (solution separation, as
+//! ARAIM does it over satellites and ArduPilot's EKF3 over IMU lanes). They share
+//! everything but the measurements they leave out: the same prediction, the same
+//! states added and reset at the same moments, so that the difference between the main
+//! solution and a sub-solution is exactly what its left-out source did to the estimate
+//! since the sub-filter started, and its covariance is the difference of theirs
+//! (`integrity` tests it).
+//!
+//! A measurement is linearised once, about the main filter's state. A sub-filter's
+//! innovation is taken about its own state to first order, `y_k = y − H (x_k − x_0)`:
+//! the models are smooth and the states close (when they are not, the test has already
+//! said so), and it costs a sparse row product instead of rebuilding the measurement.
+//!
+//! Reads go to the main filter ([`std::ops::Deref`]); every change goes through the
+//! bank, so no filter can be changed alone by mistake.
+
+use super::ekf::{Ekf, Measurement, UpdateOutcome};
+use std::ops::Deref;
+
+/// Most sub-filters the bank keeps (one per aiding source): beyond, the rest share the
+/// main filter's fate unmonitored (a vehicle with more than eight aiding sources is
+/// not one this is built for).
+pub const MAX_SUBS: usize = 8;
+
+/// A filter without one source.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sub {
+    /// The source it leaves out.
+    pub without: String,
+    pub ekf: Ekf,
+    /// When it was started as a copy of the main filter, µs (host clock): what it
+    /// separates is what the source did since.
+    pub since: i64,
+}
+
+/// The main filter and its sub-filters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bank {
+    main: Ekf,
+    subs: Vec<Sub>,
+}
+
+impl Deref for Bank {
+    type Target = Ekf;
+    fn deref(&self) -> &Ekf {
+        &self.main
+    }
+}
+
+impl Bank {
+    pub fn new(main: Ekf) -> Self {
+        Self {
+            main,
+            subs: Vec::new(),
+        }
+    }
+
+    pub fn main(&self) -> &Ekf {
+        &self.main
+    }
+
+    pub fn subs(&self) -> &[Sub] {
+        &self.subs
+    }
+
+    /// The sub-filter without `source`, if there is one.
+    pub fn sub(&self, source: &str) -> Option<&Sub> {
+        self.subs.iter().find(|s| s.without == source)
+    }
+
+    /// The same change to every filter (a prediction, a state added, a reset): each
+    /// gets it on its own state.
+    pub fn each(&mut self, mut f: impl FnMut(&mut Ekf)) {
+        f(&mut self.main);
+        for s in &mut self.subs {
+            f(&mut s.ekf);
+        }
+    }
+
+    /// The same change to every filter, returning the main filter's result.
+    pub fn each_main<R>(&mut self, mut f: impl FnMut(&mut Ekf) -> R) -> R {
+        for s in &mut self.subs {
+            f(&mut s.ekf);
+        }
+        f(&mut self.main)
+    }
+
+    /// A measurement from `source` (None: a constraint every filter takes, such as
+    /// the ground's), linearised about the main filter: the main filter and every
+    /// sub-filter but the one without `source` take it, each gating it on its own.
+    /// Returns the main filter's outcome.
+    pub fn update(&mut self, m: &Measurement, gate: f64, source: Option<&str>) -> UpdateOutcome {
+        let main_x = &self.main.x;
+        for s in &mut self.subs {
+            if source.is_some_and(|src| s.without == src) {
+                continue;
+            }
+            let mk = m.about(main_x, &s.ekf.x);
+            s.ekf.update(&mk, gate, false);
+        }
+        self.main.update(m, gate, false)
+    }
+
+    /// A reset to the measurement `m` (every filter): the states in `states` forget
+    /// what they knew (variance `var`, uncorrelated), then take `m` ungated. Every
+    /// sub-filter starts again from the main filter afterwards: they all agree now.
+    pub fn reset_to(&mut self, m: &Measurement, states: &[usize], var: f64, t: i64) {
+        self.main.forget(states, var);
+        let out = self.main.update(m, 0.0, true);
+        debug_assert!(out.accepted || !out.nis.is_finite());
+        for s in &mut self.subs {
+            s.ekf = self.main.clone();
+            s.since = t;
+        }
+    }
+
+    /// Start the sub-filter without `source` as a copy of the main filter at `t`
+    /// (nothing if it runs, or the bank is full). Returns whether one runs now.
+    pub fn ensure_sub(&mut self, source: &str, t: i64) -> bool {
+        if self.sub(source).is_some() {
+            return true;
+        }
+        if self.subs.len() >= MAX_SUBS {
+            return false;
+        }
+        self.subs.push(Sub {
+            without: source.to_string(),
+            ekf: self.main.clone(),
+            since: t,
+        });
+        true
+    }
+
+    /// Start the sub-filter without `source` again from the main filter at `t`.
+    pub fn restart_sub(&mut self, source: &str, t: i64) {
+        if let Some(s) = self.subs.iter_mut().find(|s| s.without == source) {
+            s.ekf = self.main.clone();
+            s.since = t;
+        }
+    }
+
+    /// Drop the sub-filter without `source`.
+    pub fn remove_sub(&mut self, source: &str) {
+        self.subs.retain(|s| s.without != source);
+    }
+
+    /// Fault exclusion: the solution without `source` becomes the main one, and every
+    /// other sub-filter starts again from it (they all had the faulty source in them).
+    /// Returns false (and changes nothing) without such a sub-filter.
+    pub fn exclude(&mut self, source: &str, t: i64) -> bool {
+        let Some(i) = self.subs.iter().position(|s| s.without == source) else {
+            return false;
+        };
+        let clean = self.subs.swap_remove(i);
+        self.main = clean.ekf;
+        for s in &mut self.subs {
+            s.ekf = self.main.clone();
+            s.since = t;
+        }
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::ekf::IDX_P;
+    use super::*;
+    use nalgebra::{Matrix3, Vector3};
+
+    fn bank() -> Bank {
+        Bank::new(Ekf::new(
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::repeat(1.0),
+            Vector3::repeat(1.0),
+            0.01,
+        ))
+    }
+
+    fn position(z: Vector3<f64>, at: &Ekf, var: f64) -> Measurement {
+        Measurement::of_states(IDX_P, 3, &(z - at.pos()), &(Matrix3::identity() * var))
+    }
+
+    /// A sub-filter fed all but one source ends exactly where a filter fed only the
+    /// others would: the linearisation about the main filter costs nothing for a
+    /// linear measurement.
+    #[test]
+    fn a_sub_filter_is_the_filter_without_its_source() {
+        let mut b = bank();
+        b.ensure_sub("gps", 0);
+        let mut alone = b.main().clone();
+        for i in 0..20 {
+            let gps = Vector3::new(5.0, 0.0, 0.0);
+            let flow = Vector3::new(1.0 + f64::from(i) * 0.01, 0.0, 0.0);
+            let m = position(gps, b.main(), 0.5);
+            b.update(&m, 1e9, Some("gps"));
+            let m = position(flow, b.main(), 0.5);
+            b.update(&m, 1e9, Some("flow"));
+            alone.update(&position(flow, &alone, 0.5), 1e9, false);
+        }
+        let sub = b.sub("gps").expect("sub");
+        assert!((sub.ekf.pos() - alone.pos()).norm() < 1e-9);
+        assert!((sub.ekf.p.clone() - alone.p.clone()).abs().max() < 1e-9);
+        // The main filter has both, and is between them.
+        assert!(b.pos().x > alone.pos().x && b.pos().x < 5.0);
+        // Excluding the GNSS makes the clean solution the main one.
+        assert!(b.exclude("gps", 1));
+        assert!((b.pos() - alone.pos()).norm() < 1e-9);
+        assert!(b.sub("gps").is_none());
+    }
+}

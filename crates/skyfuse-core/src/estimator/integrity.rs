@@ -1,0 +1,464 @@
+//! The integrity monitor: what "valid" promises an autopilot, checked by construction
+//! rather than per fault (ARAIM's solution separation, over aiding sources; DESIGN.md,
+//! Estimator, "Integrity").
+//!
+//! - **Tests.** For each sub-filter k of the [`bank`](super::bank) (all sources but k),
+//!   the separation `d = x₀ − x_k` of the position against its covariance
+//!   `P_d = P_k − P₀` (the sub-filter's measurements are a subset of the main's, on one
+//!   prediction), per axis: `|d| ≤ T = K_fa·σ_d`. A test counts on a channel
+//!   (horizontal, vertical) only where another source also measures that channel: a
+//!   source alone on its channel has nothing to be compared with (its faults are the
+//!   unmonitored ones, bounded by the innovation gate against the IMU's prediction and
+//!   by its own σ).
+//! - **Exclusion.** When a test fails, the source whose sub-filter departs most is
+//!   excluded: its solution becomes the main one, the event names the source and the
+//!   figures, and the source's samples are only tested, not fused, until they have
+//!   agreed with the estimate for `readmit_s`.
+//! - **Protection levels**, per axis `PL = max(K_ffmd·σ₀, max_k (T_k + K_md·σ_k))` over
+//!   the monitored sub-filters; horizontal `HPL = √(PL_E² + PL_N²)`, vertical the up
+//!   axis's. The pose is valid only with `HPL ≤ horizontal_alert_m` and
+//!   `VPL ≤ vertical_alert_m`. An integrity failure is a valid pose whose true error
+//!   exceeds its protection level.
+//! - **Sub-filters start again** from the main filter once they have been quiet (test
+//!   ratio under [`RESTART_QUIET_RATIO`]) for `restart_s`: a sub-filter left to run
+//!   forever drifts as far as its remaining sources let it (a flow without its GNSS),
+//!   and its protection level with it; a fault must show within that window.
+
+use super::ekf::{IDX_P, IDX_TERRAIN, IDX_V};
+use super::measurement::Measurement;
+use super::status::Protection;
+use super::{Core, Ctx, Event};
+use crate::source_map::SourceMap;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+/// Detection threshold of a separation, in its own σ (ARAIM's K_fa): 5σ, a false
+/// alert about once in 1.7 million independent tests.
+pub const DEFAULT_K_FA: f64 = 5.0;
+/// Missed-detection multiplier of a sub-filter's own σ in the protection level.
+pub const DEFAULT_K_MD: f64 = 3.5;
+/// Fault-free multiplier of the main filter's σ in the protection level.
+pub const DEFAULT_K_FFMD: f64 = 5.5;
+/// Alert limits: the largest protection level a valid pose may carry, m. An autopilot
+/// weighs our pose by the σ it comes with, so a pose whose bound is metres still
+/// holds a position and flies a mission; silence (no pose) leaves it nothing. Sized so
+/// that a multicopter on optical flow alone, whose compass wanders by degrees, keeps a
+/// pose over most of a flight within a few hundred metres of its start (randomised
+/// flights: see BENCHMARKS.md); lower them where the vehicle flies close to obstacles.
+pub const DEFAULT_HORIZONTAL_ALERT_M: f64 = 50.0;
+pub const DEFAULT_VERTICAL_ALERT_M: f64 = 20.0;
+/// An excluded source agrees again for this long before it is fused again, s.
+pub const DEFAULT_READMIT_S: f64 = 10.0;
+/// A sub-filter quiet this long starts again from the main filter, s.
+pub const DEFAULT_RESTART_S: f64 = 30.0;
+/// The tests run at most this often (filter time), µs.
+const CHECK_EVERY_US: i64 = 50_000;
+/// "Quiet": a separation under this fraction of its threshold.
+pub const RESTART_QUIET_RATIO: f64 = 0.3;
+/// A separation's σ is taken as at least this, m: a source that moved the estimate
+/// by millimetres on an axis it barely informs (a flow's velocity on the height, by
+/// the tilt) is no fault, however small its own σ there.
+const SIGMA_D_FLOOR: f64 = 0.2;
+/// A Jacobian entry this large (of a unit one) makes a measurement inform a channel:
+/// a body-frame velocity's vertical part through a tilt of a few degrees does not.
+const CHANNEL_WEIGHT: f64 = 0.3;
+/// A source counts as measuring a channel this long after it last did, at least, µs.
+const CHANNEL_RECENT_US: i64 = 2_000_000;
+
+/// `[integrity]`: the tests, the protection levels and the alert limits.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IntegrityConfig {
+    /// Run the bank of sub-filters and the separation tests. Off: the protection level
+    /// is the main filter's `K_ffmd·σ` alone.
+    pub enabled: bool,
+    pub k_fa: f64,
+    pub k_md: f64,
+    pub k_ffmd: f64,
+    pub horizontal_alert_m: f64,
+    pub vertical_alert_m: f64,
+    pub readmit_s: f64,
+    pub restart_s: f64,
+}
+
+impl Default for IntegrityConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            k_fa: DEFAULT_K_FA,
+            k_md: DEFAULT_K_MD,
+            k_ffmd: DEFAULT_K_FFMD,
+            horizontal_alert_m: DEFAULT_HORIZONTAL_ALERT_M,
+            vertical_alert_m: DEFAULT_VERTICAL_ALERT_M,
+            readmit_s: DEFAULT_READMIT_S,
+            restart_s: DEFAULT_RESTART_S,
+        }
+    }
+}
+
+impl IntegrityConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        for (name, v) in [
+            ("k_fa", self.k_fa),
+            ("k_md", self.k_md),
+            ("k_ffmd", self.k_ffmd),
+            ("horizontal_alert_m", self.horizontal_alert_m),
+            ("vertical_alert_m", self.vertical_alert_m),
+            ("readmit_s", self.readmit_s),
+            ("restart_s", self.restart_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!(
+                    "integrity.{name} must be a positive number, got {v}"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The channels a measurement informs.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Channels {
+    pub horizontal: bool,
+    pub vertical: bool,
+}
+
+impl Channels {
+    /// From the core states its Jacobian reads (position, velocity, terrain).
+    pub fn of(m: &Measurement) -> Self {
+        let mut c = Channels::default();
+        for row in 0..m.rows() {
+            for (k, h) in m.jacobian_row(row).entries() {
+                if h.abs() < CHANNEL_WEIGHT {
+                    continue;
+                }
+                match k {
+                    k if k == IDX_P || k == IDX_P + 1 || k == IDX_V || k == IDX_V + 1 => {
+                        c.horizontal = true
+                    }
+                    k if k == IDX_P + 2 || k == IDX_V + 2 || k == IDX_TERRAIN => c.vertical = true,
+                    _ => {}
+                }
+            }
+        }
+        c
+    }
+}
+
+/// When a source last informed each channel (fused into the main filter).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SourceChannels {
+    pub horizontal: Option<i64>,
+    pub vertical: Option<i64>,
+}
+
+/// A source taken out by a failed separation test.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Excluded {
+    pub since: i64,
+    /// Since when its samples have agreed with the estimate (innovation test passed).
+    pub agreeing_since: Option<i64>,
+}
+
+/// One sub-filter's test, as the status shows it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SeparationTest {
+    /// The source the sub-filter leaves out.
+    pub source: String,
+    /// x₀ − x_k, ENU, m.
+    pub separation: [f64; 3],
+    /// σ of the separation per axis, m.
+    pub sigma: [f64; 3],
+    /// The largest |d| / T over the channels it is tested on (> 1: failed).
+    pub ratio: f64,
+    /// Tested on (another source shares the channel).
+    pub horizontal: bool,
+    pub vertical: bool,
+    /// Seconds since the sub-filter started.
+    pub age_s: f64,
+}
+
+/// The monitor's state (part of the core: snapshotted and re-run with it).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct IntegrityState {
+    pub channels: SourceMap<SourceChannels>,
+    pub excluded: SourceMap<Excluded>,
+    pub last_check: Option<i64>,
+    pub tests: Vec<SeparationTest>,
+    /// Protection levels of the last check (horizontal, vertical), m.
+    pub hpl: f64,
+    pub vpl: f64,
+    pub exclusions: u64,
+}
+
+impl IntegrityState {
+    /// `source` informed these channels of the main filter at `t`.
+    pub fn fused(&mut self, source: &str, ch: Channels, t: i64) {
+        let c = self
+            .channels
+            .get_or_insert_with(source, SourceChannels::default);
+        if ch.horizontal {
+            c.horizontal = Some(t);
+        }
+        if ch.vertical {
+            c.vertical = Some(t);
+        }
+    }
+
+    pub fn is_excluded(&self, source: &str) -> bool {
+        self.excluded.get(source).is_some()
+    }
+
+    /// Another source than `source` informed the channel recently.
+    fn shared(&self, source: &str, t: i64, horizontal: bool, window: i64) -> bool {
+        self.channels.iter().any(|(s, c)| {
+            s != source
+                && !self.is_excluded(s)
+                && if horizontal { c.horizontal } else { c.vertical }
+                    .is_some_and(|l| t - l <= window)
+        })
+    }
+}
+
+/// An excluded source's sample was tested against the estimate (`agrees`: its
+/// innovation passed the gate). Re-admits it after `readmit_s` of agreement.
+pub(super) fn excluded_sample(core: &mut Core, ctx: &Ctx, t: i64, source: &str, agrees: bool) {
+    let readmit = (ctx.cfg.integrity.readmit_s * 1e6) as i64;
+    let Some(x) = core.integrity.excluded.get_mut(source) else {
+        return;
+    };
+    if !agrees {
+        x.agreeing_since = None;
+        return;
+    }
+    let since = *x.agreeing_since.get_or_insert(t);
+    if t - since < readmit {
+        return;
+    }
+    let excluded_s = (t - x.since) as f64 * 1e-6;
+    core.integrity.excluded.retain(|s, _| s != source);
+    core.event(
+        t,
+        Some(source),
+        format!(
+            "integrity: {source} agrees again ({:.0} s): fused again after {excluded_s:.1} s excluded",
+            ctx.cfg.integrity.readmit_s
+        ),
+        Event::IntegrityReadmit { excluded_s },
+    );
+}
+
+/// Run the tests (at most every [`CHECK_EVERY_US`]): exclude a faulty source, restart
+/// quiet sub-filters, and set the protection levels.
+pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
+    if core
+        .integrity
+        .last_check
+        .is_some_and(|l| t - l < CHECK_EVERY_US && t >= l)
+    {
+        return;
+    }
+    core.integrity.last_check = Some(t);
+    let cfg = &ctx.cfg.integrity;
+    let window = ((ctx.cfg.aiding_timeout_ms * 1000.0) as i64).max(CHANNEL_RECENT_US);
+    let Some(bank) = core.ekf.as_ref() else {
+        core.integrity.tests.clear();
+        return;
+    };
+    let main = bank.main();
+    let p0 = main.cov3(IDX_P);
+    let x0 = main.pos();
+    let sigma0 = p0.diagonal().map(|v| v.max(0.0).sqrt());
+    let mut pl = sigma0 * cfg.k_ffmd;
+    // Kept from one check to the next (the figures are written in place, the names
+    // cloned only when the bank changed): this runs 20 times a second.
+    let mut tests = std::mem::take(&mut core.integrity.tests);
+    tests.truncate(bank.subs().len());
+    let mut worst: Option<(usize, f64)> = None;
+    for (i, sub) in bank.subs().iter().enumerate() {
+        let d = x0 - sub.ekf.pos();
+        let pk = sub.ekf.cov3(IDX_P);
+        let sigma_k = pk.diagonal().map(|v| v.max(0.0).sqrt());
+        let sigma_d: Vector3<f64> = (pk - p0)
+            .diagonal()
+            .map(|v| v.max(0.0).sqrt().max(SIGMA_D_FLOOR));
+        // Tested on a channel the source informs and another source shares.
+        let own = core
+            .integrity
+            .channels
+            .get(&sub.without)
+            .copied()
+            .unwrap_or_default();
+        let informs = |c: Option<i64>| c.is_some_and(|l| t - l <= window);
+        let horizontal =
+            informs(own.horizontal) && core.integrity.shared(&sub.without, t, true, window);
+        let vertical =
+            informs(own.vertical) && core.integrity.shared(&sub.without, t, false, window);
+        let mut ratio = 0.0f64;
+        for a in 0..3 {
+            let tested = if a < 2 { horizontal } else { vertical };
+            if !tested {
+                continue;
+            }
+            let threshold = cfg.k_fa * sigma_d[a];
+            ratio = ratio.max(d[a].abs() / threshold);
+            pl[a] = pl[a].max(threshold + cfg.k_md * sigma_k[a]);
+        }
+        if ratio > 1.0 && worst.is_none_or(|(_, r)| ratio > r) {
+            worst = Some((i, ratio));
+        }
+        let test = SeparationTest {
+            source: String::new(),
+            separation: [d.x, d.y, d.z],
+            sigma: [sigma_d.x, sigma_d.y, sigma_d.z],
+            ratio,
+            horizontal,
+            vertical,
+            age_s: (t - sub.since) as f64 * 1e-6,
+        };
+        match tests.get_mut(i) {
+            Some(old) => {
+                let name = std::mem::take(&mut old.source);
+                *old = test;
+                old.source = name;
+            }
+            None => tests.push(test),
+        }
+        if tests[i].source != sub.without {
+            tests[i].source = sub.without.clone();
+        }
+    }
+    core.integrity.hpl = pl.x.hypot(pl.y);
+    core.integrity.vpl = pl.z;
+    // Not while carried by hand: nothing is sent then (the pose is invalid until set
+    // down), and a hand tilts a range finder at anything, so the sources disagree in
+    // ways a flight does not. Measured on the real PX4 flight: a camera excluded in
+    // (or just after) the hand for a range finder's steps left the main filter with
+    // the flow's uncorrected drift for the whole flight after.
+    // The sub-filters follow the main one meanwhile: what they made of the hand's
+    // motion is no test of anything once it is set down.
+    if core.ground.handled(t) {
+        if let Some(bank) = core.ekf.as_mut() {
+            for s in &tests {
+                bank.restart_sub(&s.source, t);
+            }
+        }
+        core.integrity.tests = tests;
+        return;
+    }
+    if let Some((i, ratio)) = worst {
+        let test = tests[i].clone();
+        core.integrity.tests = tests;
+        exclude(core, t, &test, ratio);
+        return;
+    }
+    // Quiet sub-filters start again from the main one (see the module's docs).
+    let restart = (cfg.restart_s * 1e6) as i64;
+    if let Some(bank) = core.ekf.as_mut() {
+        for s in &tests {
+            if s.ratio < RESTART_QUIET_RATIO && s.age_s * 1e6 >= restart as f64 {
+                bank.restart_sub(&s.source, t);
+            }
+        }
+    }
+    core.integrity.tests = tests;
+}
+
+/// Exclude the source of the failed `test`: its sub-filter's solution becomes the main
+/// one (every other sub-filter starts again from it).
+fn exclude(core: &mut Core, t: i64, test: &SeparationTest, ratio: f64) {
+    let source = test.source.as_str();
+    let Some(bank) = core.ekf.as_mut() else {
+        return;
+    };
+    if !bank.exclude(source, t) {
+        return;
+    }
+    core.integrity.excluded.put(
+        source,
+        Excluded {
+            since: t,
+            agreeing_since: None,
+        },
+    );
+    core.integrity.exclusions += 1;
+    core.reset_counter = core.reset_counter.wrapping_add(1);
+    let [e, n, u] = test.separation;
+    let [se, sn, su] = test.sigma;
+    core.event(
+        t,
+        Some(source),
+        format!(
+            "integrity: {source} excluded: the estimate with it departs from the one without it by ({e:.2}, {n:.2}, {u:.2}) m ENU against σ ({se:.2}, {sn:.2}, {su:.2}) m, {ratio:.1}× the threshold; the solution without it is the estimate now"
+        ),
+        Event::IntegrityExclusion {
+            separation: test.separation,
+            sigma: test.sigma,
+            test_ratio: ratio,
+            reset_counter: core.reset_counter,
+        },
+    );
+}
+
+/// The protection levels of the estimate now, and the alert limits: the bank's when it
+/// runs, else the main filter's `K_ffmd·σ` alone.
+pub(super) fn protection(core: &Core, cfg: &IntegrityConfig) -> Protection {
+    let (hpl, vpl) = if cfg.enabled && core.ekf.is_some() && core.integrity.last_check.is_some() {
+        (core.integrity.hpl, core.integrity.vpl)
+    } else {
+        let var = match core.ekf.as_ref() {
+            Some(e) => e.cov3(IDX_P).diagonal(),
+            None => core.wrls.var,
+        };
+        let s = var.map(|v| v.max(0.0).sqrt()) * cfg.k_ffmd;
+        (s.x.hypot(s.y), s.z)
+    };
+    Protection {
+        horizontal_m: hpl,
+        vertical_m: vpl,
+        horizontal_alert_m: cfg.horizontal_alert_m,
+        vertical_alert_m: cfg.vertical_alert_m,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_measurement_says_which_channels_it_informs() {
+        let m = Measurement::height(0.1, 0.01);
+        assert_eq!(
+            Channels::of(&m),
+            Channels {
+                horizontal: false,
+                vertical: true
+            }
+        );
+        let r = nalgebra::Matrix3::identity();
+        let m = Measurement::of_states(IDX_V, 2, &Vector3::zeros(), &r);
+        assert_eq!(
+            Channels::of(&m),
+            Channels {
+                horizontal: true,
+                vertical: false
+            }
+        );
+        let m = Measurement::of_states(IDX_P, 3, &Vector3::zeros(), &r);
+        assert!(Channels::of(&m).horizontal && Channels::of(&m).vertical);
+    }
+
+    #[test]
+    fn the_config_refuses_nonsense() {
+        assert!(IntegrityConfig::default().validate().is_ok());
+        let bad = IntegrityConfig {
+            horizontal_alert_m: 0.0,
+            ..IntegrityConfig::default()
+        };
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .contains("integrity.horizontal_alert_m"));
+    }
+}

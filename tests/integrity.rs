@@ -1,0 +1,63 @@
+//! Integrity, end to end on simulated flights: a fixed slice of the randomised flights
+//! (`skyfuse sim --monte-carlo`) keeps "valid" inside its protection level.
+
+use skyfuse::estimator::EstimatorConfig;
+use skyfuse::health::HealthConfig;
+use skyfuse::offline::{run_draw, DrawResult};
+
+/// The slice: draws 0..SLICE of seed 1, the same as `skyfuse sim --monte-carlo 20
+/// --seed 1` flies first (BENCHMARKS.md has the longer runs).
+const SLICE: u64 = 20;
+const SEED: u64 = 1;
+
+/// Every valid pose of every flight in the slice holds the truth inside the protection
+/// level it was sent with: the headline figure, 0 integrity failures. Each draw is its
+/// own vehicle (rates, unknown delays, biases, a lying range finder, multipath,
+/// magnetic heading error) through the one default configuration.
+#[test]
+fn a_slice_of_randomised_flights_has_no_integrity_failure() {
+    let next = std::sync::atomic::AtomicU64::new(0);
+    let results = std::sync::Mutex::new(Vec::<DrawResult>::new());
+    std::thread::scope(|s| {
+        for _ in 0..2 {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                if i >= SLICE {
+                    break;
+                }
+                let r = run_draw(SEED, i, EstimatorConfig::default(), HealthConfig::default());
+                results.lock().expect("results").push(r);
+            });
+        }
+    });
+    let mut results = results.into_inner().expect("results");
+    results.sort_by_key(|r| r.index);
+    assert_eq!(results.len() as u64, SLICE);
+    let mut failed = vec![];
+    let mut valid_poses = 0;
+    for r in &results {
+        let c = r.consistency.as_ref();
+        println!(
+            "{:>3} {:<26} integrity failures {:>4}, valid airborne {:>5.1} %, within 3σ {:?}, NEES {:?}, fused {:?} m, flow DR {:?} m: {}",
+            r.index,
+            r.family,
+            r.integrity_failures(),
+            100.0 * r.availability.airborne_valid_fraction.unwrap_or(0.0),
+            c.map(|c| c.within_3_sigma.map(|w| (1000.0 * w).round() / 10.0)),
+            c.map(|c| c.nees_axis.map(|n| (100.0 * n).round() / 100.0)),
+            r.fused_rmse_m.map(|x| (x * 100.0).round() / 100.0),
+            r.flow_dead_reckoning_m.map(|x| (x * 100.0).round() / 100.0),
+            r.description
+        );
+        valid_poses += c.map_or(0, |c| c.poses);
+        if r.integrity_failures() > 0 {
+            failed.push((r.index, r.integrity_failures()));
+        }
+    }
+    // The slice must test something: most flights send valid poses.
+    assert!(valid_poses > 100_000, "{valid_poses} valid poses");
+    assert!(
+        failed.is_empty(),
+        "draws with integrity failures (index, count): {failed:?}"
+    );
+}
