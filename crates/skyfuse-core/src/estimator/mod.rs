@@ -11,6 +11,12 @@
 //! they share; `status` the types the estimator shows the world; this file the
 //! [`Estimator`] facade (time-ordered log, snapshots, late measurements).
 //!
+//! Integrity: the filter ([`ekf`]), the bank ([`bank`]: the main filter and one
+//! sub-filter per aiding source without it, every prediction applied to all, every
+//! update to those it belongs to) and the monitor ([`integrity`]: solution separation
+//! per source, fault exclusion, protection levels; "valid" needs both under the alert
+//! limits).
+//!
 //! Time: every sample gets a host time (`timing`): stamp + windowed-minimum clock offset
 //! − configured latency. The filter runs on a delayed time horizon, as PX4's EKF2 does:
 //! samples wait in a time-ordered log and are fused when the horizon reaches them, so a
