@@ -3,6 +3,7 @@
 //!   from simulated samples (the encoders are round-trip tested against rosbags and
 //!   pymavlink);
 //! - estimator cost per sample kind (IMU prediction, each update) over a simulated flight;
+//! - the bank of filters against the main filter alone, per sample;
 //! - whole-run throughput (samples/s) of a simulated scenario and of the real PX4 flight
 //!   replay, through the same `Fusion` core the service runs.
 //!
@@ -289,6 +290,54 @@ fn estimator_bench() {
     costs.print_as_published("Whole simulated flight as published");
 }
 
+/// The bank of filters (issue 44): the demo flight as published, fused by the main
+/// filter alone (`[integrity] enabled = false`: no sub-filters) and by the bank (one
+/// sub-filter per aiding source beside it), samples/s median of `REPS` each, the same
+/// samples; the cost ratio is per sample.
+fn bank_bench() {
+    let samples = sim_samples(DEMO_STREAMS, SIM_SECONDS);
+    let rate = |enabled: bool| {
+        let mut cfg = EstimatorConfig::default();
+        cfg.integrity.enabled = enabled;
+        let mut rates = Vec::new();
+        let mut subs = 0;
+        for _ in 0..REPS {
+            let mut f = Fusion::new(
+                cfg.clone(),
+                HealthConfig::default(),
+                &inputs_of(DEMO_STREAMS),
+            );
+            let t0 = Instant::now();
+            for s in &samples {
+                black_box(f.process(s, s.arrival_us));
+            }
+            rates.push(samples.len() as f64 / t0.elapsed().as_secs_f64());
+            subs = f.est.state_summary().integrity.tests.len();
+        }
+        (median(rates), subs)
+    };
+    let ((single, slo, shi), _) = rate(false);
+    let ((bank, blo, bhi), subs) = rate(true);
+    println!(
+        "## The bank of filters: the demo flight as published ({} samples, median of {REPS})\n",
+        samples.len()
+    );
+    println!("| estimator | samples/s | spread | µs per sample |");
+    println!("|---|---|---|---|");
+    println!(
+        "| main filter alone | {single:.0} | {slo:.0}–{shi:.0} | {:.2} |",
+        1e6 / single
+    );
+    println!(
+        "| bank: main + {subs} sub-filters | {bank:.0} | {blo:.0}–{bhi:.0} | {:.2} |",
+        1e6 / bank
+    );
+    println!(
+        "\nThe bank costs {:.2}× the main filter alone per sample.\n",
+        single / bank
+    );
+}
+
 /// The demo flight with its IMU at 1 kHz (a flight controller's full rate): the IMU is
 /// then three quarters of the samples, so this prices what a high-rate log costs.
 fn imu_1khz_bench() {
@@ -524,10 +573,11 @@ fn main() {
     }
     // `cargo bench --bench throughput -- ingest` runs one section.
     let only = std::env::args().skip(1).find(|a| !a.starts_with('-'));
-    let sections: [(&str, fn()); 6] = [
+    let sections: [(&str, fn()); 7] = [
         ("decode", decode_bench),
         ("ingest", ingest_bench),
         ("estimator", estimator_bench),
+        ("bank", bank_bench),
         ("imu1k", imu_1khz_bench),
         ("replay", replay_bench),
         ("ulog", ulog_replay_bench),

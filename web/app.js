@@ -687,6 +687,13 @@
       rows.push(['reset counter', String(e.reset_counter ?? '—')]);
       const sd = e.position_std;
       rows.push(['position σ', Array.isArray(sd) ? `${sd.map((v) => fmt(v, 2)).join(' / ')} m` : '—', 'full']);
+      const pr = e.integrity && e.integrity.protection;
+      if (pr) {
+        const over = pr.horizontal_m > pr.horizontal_alert_m || pr.vertical_m > pr.vertical_alert_m;
+        rows.push(['protection', `H ${fmt(pr.horizontal_m, 1)} / V ${fmt(pr.vertical_m, 1)} m (limits ${fmt(pr.horizontal_alert_m, 0)} / ${fmt(pr.vertical_alert_m, 0)})`, over ? 'full bad' : 'full']);
+      }
+      const excluded = e.integrity && Array.isArray(e.integrity.excluded) ? e.integrity.excluded : [];
+      if (excluded.length) rows.push(['excluded', excluded.join(', '), 'full bad']);
       rows.push(['sources used', Array.isArray(e.sources_used) && e.sources_used.length ? e.sources_used.join(', ') : 'none', 'full']);
       if (e.calibration && e.calibration.state) {
         const c = e.calibration;

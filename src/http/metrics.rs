@@ -246,6 +246,32 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
             std.get_or_create(&vec![("axis", axis.to_string())]).set(s);
         }
     }
+    let integrity = est.map(|e| &e.integrity);
+    let pl = m.gauges_unit(
+        "estimate_protection_level",
+        "Protection level: the integrity monitor's bound on the position error",
+        Unit::Meters,
+    );
+    let al = m.gauges_unit(
+        "estimate_alert_limit",
+        "Alert limit: the largest protection level a valid pose may carry",
+        Unit::Meters,
+    );
+    if let Some(p) = integrity.map(|i| i.protection) {
+        for (direction, level, limit) in [
+            ("horizontal", p.horizontal_m, p.horizontal_alert_m),
+            ("vertical", p.vertical_m, p.vertical_alert_m),
+        ] {
+            let l = vec![("direction", direction.to_string())];
+            pl.get_or_create(&l).set(level);
+            al.get_or_create(&l).set(limit);
+        }
+    }
+    m.counter(
+        "integrity_exclusions",
+        "Sources the integrity monitor excluded (each exclusion once)",
+        integrity.map_or(0, |i| i.exclusions),
+    );
     m.counter(
         "estimator_late_dropped",
         "Samples older than the estimator's history, dropped",

@@ -6,7 +6,7 @@
 use crate::codec::ros::{Point, PointStamped, Pose, PoseStamped, Quaternion, RosMessage};
 use crate::codec::{EncodeError, RosType};
 use crate::config::OutputConfig;
-use crate::estimator::{DebugSeries, DebugTopic, FusedPose};
+use crate::estimator::{DebugSeries, DebugTopic, FusedPose, Protection};
 use crate::pipeline::{DebugReceiver, PoseReceiver};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -143,6 +143,8 @@ pub struct PoseMessage<'a> {
     pub invalid_reason: Option<&'a str>,
     /// The ENU origin, once a GNSS fix set it.
     pub origin: Option<GeoPoint>,
+    /// The integrity monitor's bounds on the position error, and their limits.
+    pub protection: Protection,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -176,6 +178,7 @@ impl<'a> PoseMessage<'a> {
             valid: p.valid,
             invalid_reason: p.invalid_reason.as_deref(),
             origin: p.origin.map(|(lat, lon, alt)| GeoPoint { lat, lon, alt }),
+            protection: p.protection,
         }
     }
 

@@ -72,6 +72,10 @@ pub struct Recorder {
     pub validity: Vec<(f64, bool)>,
     /// The position 1σ (E, N, U) each recorded pose was sent with, m.
     pub fused_all_std: Vec<Vector3<f64>>,
+    /// The frame the reference is given in, where it is geodetic (the simulator's
+    /// home): a pose with a GNSS origin is put into it through that origin, so its
+    /// error is the geodetic one (the origin is itself a fix, with that fix's error).
+    pub truth_frame: Option<LocalEnu>,
     /// Airborne or not from the autopilot's land detector (or the simulator's truth):
     /// (t, airborne) at each change.
     pub airborne: Vec<(f64, bool)>,
@@ -227,7 +231,11 @@ impl Recorder {
         {
             return;
         }
-        let Some(pose) = est.pose() else { return };
+        let Some(mut pose) = est.pose() else { return };
+        if let (Some(home), Some((lat, lon, alt))) = (self.truth_frame, pose.origin) {
+            let (la, lo, al) = LocalEnu::new(lat, lon, alt).to_geodetic(pose.position);
+            pose.position = home.to_enu(la, lo, al);
+        }
         self.last_fused_us = Some(pose.time_us);
         let t = self.secs(pose.time_us);
         push(&mut self.fused_all, t, pose.position, pose.orientation);
@@ -834,6 +842,7 @@ fn fly(
     progress: &mut dyn FnMut(f64),
 ) -> (Recorder, u64) {
     let sim = scn.simulator(seed, duration_s);
+    let home = sim.origin();
     let inputs: InputList = scn
         .streams
         .iter()
@@ -841,6 +850,7 @@ fn fly(
         .collect();
     let mut fusion = Fusion::new(cfg, health, &inputs);
     let mut rec = Recorder::new(0);
+    rec.truth_frame = Some(home);
     for f in &scn.faults {
         rec.event(
             f.start_s,

@@ -189,6 +189,10 @@ pub struct IntegrityState {
     /// Protection levels of the last check (horizontal, vertical), m.
     pub hpl: f64,
     pub vpl: f64,
+    /// Per axis (ENU), the largest separation of a tested sub-filter beyond its 1σ,
+    /// squared, m²: a disagreement between solutions that no test has resolved, added
+    /// to the covariance sent so that an autopilot weighs what it cannot see.
+    pub unresolved_var: [f64; 3],
     pub exclusions: u64,
 }
 
@@ -276,6 +280,7 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
     let mut tests = std::mem::take(&mut core.integrity.tests);
     tests.truncate(bank.subs().len());
     let mut worst: Option<(usize, f64)> = None;
+    let mut unresolved = [0.0f64; 3];
     for (i, sub) in bank.subs().iter().enumerate() {
         let d = x0 - sub.ekf.pos();
         let pk = sub.ekf.cov3(IDX_P);
@@ -303,6 +308,7 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
             }
             let threshold = cfg.k_fa * sigma_d[a];
             ratio = ratio.max(d[a].abs() / threshold);
+            unresolved[a] = unresolved[a].max((d[a].abs() - sigma_d[a]).max(0.0).powi(2));
             pl[a] = pl[a].max(threshold + cfg.k_md * sigma_k[a]);
         }
         if ratio > 1.0 && worst.is_none_or(|(_, r)| ratio > r) {
@@ -331,6 +337,7 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
     }
     core.integrity.hpl = pl.x.hypot(pl.y);
     core.integrity.vpl = pl.z;
+    core.integrity.unresolved_var = unresolved;
     // Not while carried by hand: nothing is sent then (the pose is invalid until set
     // down), and a hand tilts a range finder at anything, so the sources disagree in
     // ways a flight does not. Measured on the real PX4 flight: a camera excluded in

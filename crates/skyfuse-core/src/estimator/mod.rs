@@ -597,7 +597,15 @@ impl Estimator {
             let now = self.output.predict(&base, present);
             orientation = now.q;
             angular_velocity = now.rate.or(angular_velocity);
-            (present, now.p, now.v, e.cov3(IDX_P), e.cov3(IDX_V))
+            // The covariance sent: the main filter's, and the solutions' disagreement
+            // that no test has resolved (see `integrity`).
+            let mut position_cov = e.cov3(IDX_P);
+            if self.cfg.integrity.enabled {
+                for (a, v) in c.integrity.unresolved_var.iter().enumerate() {
+                    position_cov[(a, a)] += v;
+                }
+            }
+            (present, now.p, now.v, position_cov, e.cov3(IDX_V))
         };
         let mut invalid_reason = self.invalid_reason();
         let finite = position
@@ -812,6 +820,7 @@ impl Estimator {
                 .filter_map(|(s, c)| c.stamp_rate.map(|r| (s.clone(), r)))
                 .collect(),
             integrity: status::IntegrityStatus {
+                protection: integrity::protection(c, &self.cfg.integrity),
                 tests: c.integrity.tests.clone(),
                 excluded: c
                     .integrity

@@ -36,6 +36,8 @@ pub struct FusedPose {
 /// The integrity monitor as the status shows it.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct IntegrityStatus {
+    /// The protection levels of the estimate now and the alert limits.
+    pub protection: Protection,
     pub tests: Vec<super::integrity::SeparationTest>,
     pub excluded: Vec<String>,
     pub exclusions: u64,
