@@ -86,10 +86,10 @@ pub const DEFAULT_GYRO_BIAS_TAU_S: f64 = 20.0;
 
 /// No position/velocity source fused for this long → invalid, ms.
 pub const DEFAULT_AIDING_TIMEOUT_MS: f64 = 1000.0;
-/// Every horizontal measurement refused for this long, with nothing else holding the
-/// horizontal position, resets the filter to the newest one, s (EKF2's and EKF3's
-/// reset after a source has been rejected for a while): otherwise the filter's own
-/// drift keeps its only source locked out for good.
+/// Every measurement of a channel (the horizontal, or the height) refused for this
+/// long, with nothing else holding that channel, resets the filter to the newest one,
+/// s (EKF2's and EKF3's reset after a source has been rejected for a while): otherwise
+/// the filter's own drift keeps its only source locked out for good.
 pub const DEFAULT_REJECT_RESET_S: f64 = 3.0;
 /// After such a reset the pose is invalid for this long, and until the source is
 /// accepted again, s.

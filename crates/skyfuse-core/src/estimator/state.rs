@@ -4,7 +4,7 @@
 
 use super::attitude::{self, AttitudeState};
 use super::bank::Bank;
-use super::ekf::{self, Ekf, Measurement, UpdateOutcome, GRAVITY, IDX_P, IDX_V};
+use super::ekf::{self, Ekf, Measurement, UpdateOutcome, GRAVITY, IDX_BA, IDX_P, IDX_V};
 use super::flow::{self, FlowCalibrator, FlowState};
 use super::gnss::{self, GnssState};
 use super::ground;
@@ -85,6 +85,8 @@ pub(crate) struct Core {
     /// When an event of each kind (outer key) was last emitted for each source.
     pub throttle: BTreeMap<&'static str, SourceMap<i64>>,
     pub last_aiding: Option<i64>,
+    /// Last accepted measurement of the height (the lock-out rule's clock for it).
+    pub last_v_aiding: Option<i64>,
     /// Last horizontal aiding, real or the ground constraint (validity).
     pub last_h_valid: Option<i64>,
     /// Since when the estimate has been dead-reckoning (no position source beyond the
@@ -340,6 +342,9 @@ impl Core {
         };
         let out = bank.update(m, gate, aiding.then_some(source));
         if out.accepted && aiding {
+            if Channels::of(m).vertical {
+                self.last_v_aiding = Some(t);
+            }
             self.integrity.fused(source, Channels::of(m), t);
             if let Some(c) = self.converging.as_mut().filter(|c| c.0 == source) {
                 c.2 = true;
@@ -352,14 +357,17 @@ impl Core {
         out.accepted
     }
 
-    /// The rule against locking out the only source: a horizontal measurement refused
-    /// while nothing has held the horizontal position or velocity for
-    /// `reject_reset_s` resets the filter to it (its horizontal states forget what
-    /// they knew and take it ungated), as EKF2 and EKF3 reset to a source rejected for
-    /// a while. The reset is counted, said, and the pose invalid until it converges.
+    /// The rule against locking out the only source: a measurement refused while
+    /// nothing has held its channel (the horizontal position or velocity; the height)
+    /// for `reject_reset_s` resets the filter to it (the states of that channel it
+    /// reads forget what they knew and take it ungated), as EKF2 and EKF3 reset to a
+    /// source rejected for a while. The reset is counted, said, and the pose invalid
+    /// until it converges.
     fn reset_if_locked_out(&mut self, t: i64, source: &str, m: &Measurement, ctx: &Ctx) {
         let cfg = ctx.cfg;
-        if !Channels::of(m).horizontal {
+        let ch = Channels::of(m);
+        let horizontal = ch.horizontal;
+        if !horizontal && !ch.vertical {
             return;
         }
         let after = (cfg.reject_reset_s * 1e6) as i64;
@@ -367,7 +375,11 @@ impl Core {
         // the drift's rate stays bounded, and a receiver's multipath offset lasting
         // longer than `reject_reset_s` is not reset to (the position's own clock did,
         // and broke the promise on 2 of the first 20 randomised flights).
-        let last = self.ground.last_h_aiding;
+        let last = if horizontal {
+            self.ground.last_h_aiding
+        } else {
+            self.last_v_aiding
+        };
         let held = last.is_some_and(|l| t - l < after);
         // Somebody else holds it (another source, or this one a moment ago), or the
         // vehicle is on the ground and held there.
@@ -378,22 +390,39 @@ impl Core {
             return;
         };
         let from = bank.pos();
-        // The horizontal states the measurement reads (a flow: the velocity only; its
+        // The channel's states the measurement reads (a flow: the velocity only; its
         // position stays as uncertain as it was).
-        let states: Vec<usize> = [IDX_P, IDX_P + 1, IDX_V, IDX_V + 1]
+        let channel = if horizontal {
+            [IDX_P, IDX_P + 1, IDX_V, IDX_V + 1]
+        } else {
+            [IDX_P + 2, IDX_V + 2, IDX_P + 2, IDX_V + 2]
+        };
+        let mut states: Vec<usize> = channel
             .into_iter()
             .filter(|&i| reads_any(m, &[i]))
             .collect();
+        states.dedup();
+        if !horizontal {
+            // The height ran away on the IMU: its vertical bias is what the filter
+            // learnt wrong, most likely (a delayed height at take-off teaches it so).
+            let k = IDX_BA + 2;
+            let var = cfg.init_accel_bias_var;
+            bank.each(|e| e.forget(&[k], var));
+        }
         // Large against anything a reset could move: the measurement decides.
         bank.reset_to(m, &states, RESET_FORGET_VAR, t);
         let moved = bank.pos() - from;
-        let jump = moved.xy().norm();
+        let jump = if horizontal {
+            moved.xy().norm()
+        } else {
+            moved.z.abs()
+        };
         // Which of the two was wrong nobody knows: a GNSS's slow error may be as
         // large as the jump (multipath that came in over seconds looks exactly so),
         // and stays as uncertain until the fixes have shown otherwise.
         if self.stats.get(source).is_some_and(|s| s.kind == "gnss") {
             bank.each(|e| {
-                for i in 0..2 {
+                for i in 0..3 {
                     let k = ekf::IDX_BG + i;
                     e.p[(k, k)] = e.p[(k, k)].max(moved[i] * moved[i]);
                 }
@@ -403,17 +432,26 @@ impl Core {
         self.reset_counter = self.reset_counter.wrapping_add(1);
         let until = t + (cfg.reset_converge_s * 1e6) as i64;
         self.converging = Some((source.to_string(), until, false));
-        for st in self.odom.values_mut() {
-            if st.align.is_some() {
-                st.need_realign = true;
+        if horizontal {
+            for st in self.odom.values_mut() {
+                if st.align.is_some() {
+                    st.need_realign = true;
+                }
             }
+            self.aided(t, self.stats.get(source).map_or("gnss", |s| s.kind));
+        } else {
+            self.last_v_aiding = Some(t);
         }
-        self.aided(t, self.stats.get(source).map_or("gnss", |s| s.kind));
+        let what = if horizontal {
+            "every horizontal measurement refused"
+        } else {
+            "every height measurement refused"
+        };
         self.event(
             t,
             Some(source),
             format!(
-                "{source}: every horizontal measurement refused for {rejected_s:.1} s with nothing else holding the position: reset to it (moved {jump:.2} m); invalid until it converges"
+                "{source}: {what} for {rejected_s:.1} s with nothing else holding it: reset to it (moved {jump:.2} m); invalid until it converges"
             ),
             Event::Reset(event::Reset::Rejected {
                 reset_counter: self.reset_counter,
@@ -1067,6 +1105,17 @@ impl Core {
             Some(l) if t - l <= timeout => {}
             _ => return Some(Invalid::NoHorizontal),
         }
+        // A height measured before and refused or silent since, off the ground: the
+        // IMU alone holds it, and a vertical error grows by metres a second (its σ
+        // only as the noise says). Twice the aiding timeout: a 1 Hz GNSS's altitude
+        // arrives once a second, jitter and all.
+        let height_timeout = (HEIGHT_TIMEOUT_FACTOR * cfg.aiding_timeout_ms * 1000.0) as i64;
+        if self.mode_ekf_direct
+            && self.ground.active != Some(ground::Constraint::OnGround)
+            && self.last_v_aiding.is_some_and(|l| t - l > height_timeout)
+        {
+            return Some(Invalid::NoHeight);
+        }
         let var = match (&self.ekf, self.mode_wrls) {
             (Some(e), false) => e.cov3(IDX_P).diagonal(),
             _ => self.wrls.var,
@@ -1124,6 +1173,9 @@ const NO_IMU_VELOCITY_TAU_S: f64 = 10.0;
 const RESET_FORGET_VAR: f64 = 1e6;
 
 /// Why the estimate is not valid.
+/// The height's aiding timeout, in aiding timeouts (see [`Invalid::NoHeight`]).
+const HEIGHT_TIMEOUT_FACTOR: f64 = 2.0;
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Invalid {
     NotInitialised,
@@ -1132,19 +1184,21 @@ pub(super) enum Invalid {
     NoAiding,
     Carried,
     NoHorizontal,
+    NoHeight,
     Uncertain,
     Protection,
     Converging,
 }
 
 impl Invalid {
-    const ALL: [Invalid; 9] = [
+    const ALL: [Invalid; 10] = [
         Invalid::NotInitialised,
         Invalid::NonFinite,
         Invalid::NoAttitude,
         Invalid::NoAiding,
         Invalid::Carried,
         Invalid::NoHorizontal,
+        Invalid::NoHeight,
         Invalid::Uncertain,
         Invalid::Protection,
         Invalid::Converging,
@@ -1166,6 +1220,10 @@ impl Invalid {
                 "no horizontal position or velocity source fused for more than {} ms",
                 cfg.aiding_timeout_ms
             ),
+            Invalid::NoHeight => format!(
+                "in the air and no height measurement fused for more than {} ms",
+                HEIGHT_TIMEOUT_FACTOR * cfg.aiding_timeout_ms
+            ),
             Invalid::Uncertain => {
                 format!("position uncertainty above {} m (1σ)", cfg.max_pos_std_m)
             }
@@ -1184,7 +1242,7 @@ impl Invalid {
 /// The reasons' texts, with the config's limits in them, made once: a pose is asked for
 /// with every sample, and is invalid for whole phases of a flight (on the ground).
 #[derive(Debug, Clone)]
-pub(super) struct InvalidTexts([String; 9]);
+pub(super) struct InvalidTexts([String; 10]);
 
 impl InvalidTexts {
     pub(super) fn new(cfg: &EstimatorConfig) -> Self {
