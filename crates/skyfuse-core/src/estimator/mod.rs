@@ -189,8 +189,6 @@ const DELAY_ADOPT_STD_US: f64 = 30_000.0;
 /// and a queue plausibly add to (or take from) its configured latency.
 const DELAY_SHIFT_MIN_US: i64 = -100_000;
 const DELAY_SHIFT_MAX_US: i64 = 600_000;
-/// A shifted sample stays at least this much younger than the oldest snapshot, µs.
-const DELAY_HISTORY_MARGIN_US: i64 = 150_000;
 
 /// A snapshot of the core at most this often, µs. Any earlier snapshot re-runs to the
 /// same state, so the spacing trades the clones (the core is large: maps, series,
@@ -237,10 +235,6 @@ impl Estimator {
         let Some(bank) = self.core.ekf.as_ref() else {
             return;
         };
-        // Never so far back that the samples fall out of the history (they would be
-        // dropped as late, every one: a height lost so ran away on the IMU).
-        let history_us = (self.cfg.history_ms * 1000.0) as i64;
-        let max_shift = DELAY_SHIFT_MAX_US.min(history_us - DELAY_HISTORY_MARGIN_US);
         let mut moves = Vec::new();
         for (source, idx) in &bank.delays {
             let tau_us = bank.x[*idx] * 1e6;
@@ -253,7 +247,7 @@ impl Estimator {
                 continue;
             }
             let shift = self.delay_shift.get(source).map_or(0, |d| d.0);
-            let to = (shift + tau_us.round() as i64).clamp(DELAY_SHIFT_MIN_US, max_shift);
+            let to = (shift + tau_us.round() as i64).clamp(DELAY_SHIFT_MIN_US, DELAY_SHIFT_MAX_US);
             if to != shift {
                 moves.push((source.clone(), *idx, to, (to - shift) as f64 * 1e-6));
             }
