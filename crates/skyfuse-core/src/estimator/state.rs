@@ -392,16 +392,16 @@ impl Core {
         let from = bank.pos();
         // The channel's states the measurement reads (a flow: the velocity only; its
         // position stays as uncertain as it was).
-        let channel = if horizontal {
-            [IDX_P, IDX_P + 1, IDX_V, IDX_V + 1]
+        let channel: &[usize] = if horizontal {
+            &[IDX_P, IDX_P + 1, IDX_V, IDX_V + 1]
         } else {
-            [IDX_P + 2, IDX_V + 2, IDX_P + 2, IDX_V + 2]
+            &[IDX_P + 2, IDX_V + 2]
         };
-        let mut states: Vec<usize> = channel
-            .into_iter()
+        let states: Vec<usize> = channel
+            .iter()
+            .copied()
             .filter(|&i| reads_any(m, &[i]))
             .collect();
-        states.dedup();
         if !horizontal {
             // The height ran away on the IMU: its vertical bias is what the filter
             // learnt wrong, most likely (a delayed height at take-off teaches it so).

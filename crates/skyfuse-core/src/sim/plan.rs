@@ -3,7 +3,7 @@
 //! speed, each taking off, flying and landing smoothly (the position is C², so the IMU
 //! derived from it is consistent). [`super::truth::Profile::Plan`] flies one.
 
-use super::truth::smoothstep5;
+use super::truth::{ramped_distance, smoothstep5};
 use nalgebra::Vector3;
 use std::f64::consts::PI;
 
@@ -118,31 +118,8 @@ impl FlightPlan {
 
     /// Distance flown by `t` at `speed` ramped in and out (see [`Self::lap_distance`]).
     fn distance_at(&self, t: f64, speed: f64) -> f64 {
-        fn ramp_integral(x: f64) -> f64 {
-            let x = x.clamp(0.0, 1.0);
-            x.powi(4) * (2.5 - 3.0 * x + x * x)
-        }
         let (a, b) = self.cruise();
-        let up = |t: f64| {
-            let x = (t - a) / RAMP_S;
-            if x <= 1.0 {
-                RAMP_S * ramp_integral(x)
-            } else {
-                RAMP_S * ramp_integral(1.0) + (t - a - RAMP_S)
-            }
-        };
-        let down_start = b - RAMP_S;
-        let down = |t: f64| {
-            let x = (t - down_start) / RAMP_S;
-            if x <= 0.0 {
-                0.0
-            } else if x <= 1.0 {
-                RAMP_S * ramp_integral(x)
-            } else {
-                RAMP_S * ramp_integral(1.0) + (t - down_start - RAMP_S)
-            }
-        };
-        speed * (up(t.max(a)) - down(t))
+        ramped_distance(t, a, b, RAMP_S, speed)
     }
 
     /// Position at `t` (within one loop), m.

@@ -161,35 +161,41 @@ fn position_at(profile: Profile, t_loop: f64) -> Vector3<f64> {
 }
 
 /// Distance flown along the laps' circle by `t`: the speed ramps in over
-/// [`LAP_RAMP_S`] after the climb and out before the landing (closed form of the
-/// integral of [`LAP_SPEED`] × smoothstep, so positions are exact at any step).
+/// [`LAP_RAMP_S`] after the climb and out before the landing.
 fn lap_distance(t: f64) -> f64 {
+    ramped_distance(t, T_CRUISE, LAP_LANDING, LAP_RAMP_S, LAP_SPEED)
+}
+
+/// Distance flown by `t` at `speed` between `start` and `end`, the speed ramped in over
+/// `ramp_s` after `start` and out over `ramp_s` before `end` (closed form of the
+/// integral of speed × smoothstep, so positions are exact at any step).
+pub(super) fn ramped_distance(t: f64, start: f64, end: f64, ramp_s: f64, speed: f64) -> f64 {
     // ∫ smoothstep5 over [0, x] (x in 0..1) = x⁴(2.5 − 3x + x²)... times the ramp.
     fn ramp_integral(x: f64) -> f64 {
         let x = x.clamp(0.0, 1.0);
         x.powi(4) * (2.5 - 3.0 * x + x * x)
     }
     let up = |t: f64| {
-        let x = (t - T_CRUISE) / LAP_RAMP_S;
+        let x = (t - start) / ramp_s;
         if x <= 1.0 {
-            LAP_RAMP_S * ramp_integral(x)
+            ramp_s * ramp_integral(x)
         } else {
-            LAP_RAMP_S * ramp_integral(1.0) + (t - T_CRUISE - LAP_RAMP_S)
+            ramp_s * ramp_integral(1.0) + (t - start - ramp_s)
         }
     };
-    let down_start = LAP_LANDING - LAP_RAMP_S;
+    let down_start = end - ramp_s;
     let down = |t: f64| {
         // What the ramp-down takes away from full speed after down_start.
-        let x = (t - down_start) / LAP_RAMP_S;
+        let x = (t - down_start) / ramp_s;
         if x <= 0.0 {
             0.0
         } else if x <= 1.0 {
-            LAP_RAMP_S * ramp_integral(x)
+            ramp_s * ramp_integral(x)
         } else {
-            LAP_RAMP_S * ramp_integral(1.0) + (t - down_start - LAP_RAMP_S)
+            ramp_s * ramp_integral(1.0) + (t - down_start - ramp_s)
         }
     };
-    LAP_SPEED * (up(t.max(T_CRUISE)) - down(t))
+    speed * (up(t.max(start)) - down(t))
 }
 
 /// Amplitude of the hover's wander, m.
