@@ -458,7 +458,7 @@ impl Pipeline {
                 publish_events(&self.shared, &[event]);
             }
         }
-        let mut events = self.fusion.tick(now);
+        let mut events = self.fusion.tick_idle(now);
         self.events_to_host(&mut events);
         publish_events(&self.shared, &events);
         self.refresh_status();

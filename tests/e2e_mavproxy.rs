@@ -11,7 +11,6 @@
 
 mod common;
 use common::*;
-use std::net::UdpSocket;
 use std::path::PathBuf;
 use std::process::Command;
 use std::time::Duration;
@@ -32,13 +31,6 @@ fn mavproxy() -> Result<PathBuf, String> {
             py.display()
         )),
     }
-}
-
-fn free_udp_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .map(|a| a.port())
-        .expect("free UDP port")
 }
 
 fn f(v: &serde_json::Value) -> f64 {
@@ -68,7 +60,7 @@ fn vpe_through_mavproxy_over_udp_and_tcp_survives_its_restart() {
             return;
         }
     };
-    let (router_udp, router_tcp, gcs_udp) = (free_udp_port(), free_port(), free_udp_port());
+    let (router_udp, router_tcp, gcs_udp) = (free_port(), free_port(), free_port());
     let svc = Service::start(
         &[
             "demo",

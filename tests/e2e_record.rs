@@ -65,6 +65,35 @@ fn live_difference(stdout: &str) -> (usize, f64, f64) {
     (matched, num("RMS"), num("max"))
 }
 
+/// The first second after the filter starts is left out of the comparison with the
+/// poses sent live: which of several inputs' first samples reaches the filter first
+/// depends on Zenoh's receiving threads, and while the covariance is still wide the
+/// transient follows that order (0.48 m apart at 0.19 s under load, 1 run in 4; under
+/// 0.04 m from 1 s on). A later difference is the replay not reproducing the flight.
+const SETTLE_S: f64 = 1.0;
+
+/// (matched, RMS, max) of the position difference between the replay's valid poses
+/// (`fused.tum`) and those sent live (`live.tum`) from [`SETTLE_S`] on, each live pose
+/// against the replayed pose nearest in time (within 10 ms, as `skyfuse replay` pairs).
+fn settled_difference(out: &Path) -> (usize, f64, f64) {
+    let live = tum_positions(&out.join("live.tum"));
+    let fused = tum_positions(&out.join("fused.tum"));
+    let (mut n, mut sum, mut max) = (0usize, 0.0, 0.0f64);
+    for (t, p) in live.iter().filter(|(t, _)| *t >= SETTLE_S) {
+        let near = fused
+            .iter()
+            .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()))
+            .filter(|(ft, _)| (ft - t).abs() <= 0.01);
+        if let Some((_, q)) = near {
+            let d = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
+            n += 1;
+            sum += d * d;
+            max = max.max(d);
+        }
+    }
+    (n, (sum / n.max(1) as f64).sqrt(), max)
+}
+
 fn tum_positions(file: &Path) -> Vec<(f64, [f64; 3])> {
     let tr = skyfuse::eval::Trajectory::read_tum(file)
         .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
@@ -192,11 +221,17 @@ fn a_recorded_flight_reads_in_the_mcap_tools_and_replays_to_the_poses_sent_live(
         assert!(x.is_ok(), "{f} written");
         assert!(x.ok() == y.ok(), "{f} the same both times");
     }
-    let (matched, rms, max) = live_difference(&stdout);
-    eprintln!("replay vs live: {matched} poses, RMS {rms} m, max {max} m");
+    let (matched, _, _) = live_difference(&stdout);
     assert!(matched > 250, "{stdout}");
-    // Not zero: live, the health checks also ran on a 10 Hz timer between samples.
-    assert!(rms < 0.02 && max < 0.1, "{stdout}");
+    let (settled, rms, max) = settled_difference(&a);
+    eprintln!("replay vs live from {SETTLE_S} s: {settled} poses, RMS {rms} m, max {max} m");
+    assert!(settled > 200, "{settled} poses compared:\n{stdout}");
+    // Not zero: live, samples of different inputs can reach the filter in another order
+    // than their arrival stamps in the recording (several receiving threads).
+    assert!(
+        rms < 0.02 && max < 0.1,
+        "RMS {rms} m, max {max} m:\n{stdout}"
+    );
 }
 
 #[test]
@@ -242,8 +277,8 @@ fn a_rosbag2_bag_written_by_rosbags_replays_like_the_recording() {
     let file = recording(&dir);
     let from_recording = tmp("ros-replay");
     let (stdout, _) = replay(&file, &from_recording, &env);
-    let (_, rms, _) = live_difference(&stdout);
-    assert!(rms < 0.02, "{stdout}");
+    let (_, rms, _) = settled_difference(&from_recording);
+    assert!(rms < 0.02, "RMS {rms} m from {SETTLE_S} s:\n{stdout}");
 
     // The same messages as a bag, topics as ROS names them (with skyfuse's own ROS 2
     // outputs in it, as `ros2 bag record -a` would have them): the same bytes out.

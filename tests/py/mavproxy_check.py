@@ -49,6 +49,9 @@ import time
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from probe import free_port  # noqa: E402
+
 VPE_ID = mavlink2.MAVLINK_MSG_ID_VISION_POSITION_ESTIMATE
 MAV_TYPE_ONBOARD_CONTROLLER = 18
 
@@ -61,10 +64,6 @@ def log(msg):
     print(f"[mavproxy_check {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
-def free_port(kind=socket.SOCK_DGRAM):
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _die_with_parent():

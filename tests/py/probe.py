@@ -8,12 +8,29 @@ import urllib.request
 TICK = os.sysconf("SC_CLK_TCK")
 
 
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    p = s.getsockname()[1]
-    s.close()
-    return p
+_next_port = [None]
+
+
+def free_port(kind=None):
+    """A loopback port free for TCP and UDP, below the kernel's ephemeral range
+    (32768-60999): a port bind(0) hands out could be taken by an outgoing connection
+    before the child binds it. Each process walks its own stretch, seeded by its pid.
+    `kind` is accepted for callers that name a socket type; both are checked anyway."""
+    low, span = 20000, 12000
+    if _next_port[0] is None:
+        _next_port[0] = (os.getpid() * 131 + 7) % span
+    for _ in range(span):
+        port = low + _next_port[0] % span
+        _next_port[0] += 1
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as t, \
+                    socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+                t.bind(("127.0.0.1", port))
+                u.bind(("127.0.0.1", port))
+            return port
+        except OSError:
+            continue
+    raise RuntimeError(f"no free loopback port in {low}..{low + span}")
 
 
 def status(port):

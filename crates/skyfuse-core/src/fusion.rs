@@ -9,6 +9,10 @@ use crate::sample::{Sample, SensorKind};
 
 /// Health is re-evaluated at most this often (host time), µs.
 const EVALUATE_EVERY_US: i64 = 20_000;
+/// Without an evaluation for this long, the samples have stopped: the host's periodic
+/// check takes over (its period is 100 ms; this is half as long again so that a tick
+/// never lands between samples that still flow at ≥ 10 Hz).
+const IDLE_AFTER_US: i64 = 150_000;
 
 pub struct Fusion {
     pub est: Estimator,
@@ -63,7 +67,24 @@ impl Fusion {
         self.health.on_rejected(source, code, text, now_us);
     }
 
-    /// Re-evaluate health (also called on a timer, so staleness is seen without data).
+    /// The host's periodic check, for when samples stop coming: staleness and
+    /// validity are then judged without data. While samples flow, every sample already
+    /// evaluates (every [`EVALUATE_EVERY_US`]), and a timer's tick in between would
+    /// only shift when the filter runs behind its horizon: the fused track would then
+    /// hang on the host's scheduling, and a replay of the recording could not
+    /// reproduce the poses sent live. So it acts only after [`IDLE_AFTER_US`] without
+    /// an evaluation (or when the clock went back).
+    pub fn tick_idle(&mut self, now_us: i64) -> Vec<EstimatorEvent> {
+        if self
+            .last_eval_us
+            .is_some_and(|l| now_us >= l && now_us - l < IDLE_AFTER_US)
+        {
+            return vec![];
+        }
+        self.tick(now_us)
+    }
+
+    /// Re-evaluate health (each sample calls it; [`Self::tick_idle`] when none come).
     pub fn tick(&mut self, now_us: i64) -> Vec<EstimatorEvent> {
         if self
             .last_eval_us
