@@ -725,6 +725,40 @@ impl Ekf {
         self.symmetrise();
     }
 
+    /// [`Self::reset_pos_vel`] to a GNSS fix `z` that carries the slow error the bias
+    /// states hold: the position is `z − b`, so its variance is the fix's plus the
+    /// bias's, and it is correlated with the bias (`cov(p, b) = −P_bb`). Without that
+    /// the reset position claimed the fix's white noise alone (the link-loss flight: 1.3 m
+    /// off for seconds with σ 0.5 m).
+    pub fn reset_pos_vel_through_bias(
+        &mut self,
+        z: Vector3<f64>,
+        vel: Option<Vector3<f64>>,
+        fix_var: Vector3<f64>,
+        vel_var: f64,
+    ) {
+        let bias = self.x.fixed_rows::<3>(IDX_BG).into_owned();
+        let p_bb = self.p.view((IDX_BG, IDX_BG), (3, 3)).into_owned();
+        let p_bx = self.p.rows(IDX_BG, 3).into_owned();
+        self.reset_pos_vel(z - bias, vel, fix_var, vel_var);
+        let n = self.n();
+        let was_reset = |j: usize| {
+            (IDX_P..IDX_P + 3).contains(&j) || (vel.is_some() && (IDX_V..IDX_V + 3).contains(&j))
+        };
+        // p = z − b: its covariance with every other state is minus the bias's.
+        for i in 0..3 {
+            for j in (0..n).filter(|&j| !was_reset(j)) {
+                let c = -p_bx[(i, j)];
+                self.p[(IDX_P + i, j)] = c;
+                self.p[(j, IDX_P + i)] = c;
+            }
+            for k in 0..3 {
+                self.p[(IDX_P + i, IDX_P + k)] += p_bb[(i, k)];
+            }
+        }
+        self.symmetrise();
+    }
+
     /// The normalised innovation test ratio a measurement would get (NIS / gate), without
     /// updating: infinite when S is singular.
     pub fn test_ratio(&self, m: &Measurement, gate: f64) -> f64 {

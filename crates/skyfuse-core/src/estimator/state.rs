@@ -1228,8 +1228,8 @@ impl Invalid {
                 format!("position uncertainty above {} m (1σ)", cfg.max_pos_std_m)
             }
             Invalid::Converging => format!(
-                "reset to a source that was refused for {} s: converging",
-                cfg.reject_reset_s
+                "reset to one source's measurement: converging (at least {} s, until it is fused again)",
+                cfg.reset_converge_s
             ),
             Invalid::Protection => format!(
                 "protection level above the alert limit ({} m horizontal, {} m vertical)",

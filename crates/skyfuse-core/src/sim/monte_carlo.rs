@@ -141,7 +141,7 @@ pub fn draw(seed: u64, index: u64) -> Draw {
         size_m: match kind {
             PlanKind::Hover => uniform(rng, 0.1, 2.0),
             PlanKind::Laps => uniform(rng, 5.0, 40.0),
-            PlanKind::Figure8 | PlanKind::Climb => uniform(rng, 6.0, 60.0),
+            PlanKind::Figure8 | PlanKind::Climb | PlanKind::Square => uniform(rng, 6.0, 60.0),
         },
         climb_to_m: reach + uniform(rng, 2.0, 10.0),
         yaw_swing_rad: uniform(rng, 0.0, 1.5),

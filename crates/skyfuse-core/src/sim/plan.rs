@@ -19,9 +19,14 @@ pub enum PlanKind {
     /// Up to `climb_to_m` (beyond the range finder), a slow figure-eight there, back
     /// down to `height_m`.
     Climb,
+    /// An offboard square as PX4's tests fly it: from corner to corner of a square
+    /// `size_m` wide in one quick move each (peak `speed_mps`, 5.8·size/T² m/s² at its
+    /// ends: the hard steps), holding [`SQUARE_HOLD_S`] at each corner, the nose fixed.
+    Square,
 }
 
 impl PlanKind {
+    /// The kinds the Monte Carlo runs draw from.
     pub const ALL: [PlanKind; 4] = [
         PlanKind::Hover,
         PlanKind::Laps,
@@ -35,6 +40,7 @@ impl PlanKind {
             PlanKind::Laps => "laps",
             PlanKind::Figure8 => "figure8",
             PlanKind::Climb => "climb",
+            PlanKind::Square => "square",
         }
     }
 }
@@ -69,6 +75,8 @@ const RAMP_S: f64 = 10.0;
 const HIGH_CLIMB_RATE: f64 = 1.5;
 /// On the ground after landing before the flight's loop repeats, s.
 const AFTER_LANDING_S: f64 = 4.0;
+/// [`PlanKind::Square`]: the hold at each corner, s.
+pub const SQUARE_HOLD_S: f64 = 4.0;
 
 impl FlightPlan {
     /// The flight's loop: flight, then standing on the ground.
@@ -122,6 +130,28 @@ impl FlightPlan {
         ramped_distance(t, a, b, RAMP_S, speed)
     }
 
+    /// [`PlanKind::Square`]: where on the square at `t`. Each move is a quintic
+    /// smoothstep over `T = 1.875·size/speed` (its peak speed is `speed_mps`), then the
+    /// hold; only moves that end before the landing starts are flown.
+    fn square_xy(&self, t: f64) -> Vector3<f64> {
+        const CORNERS: [(f64, f64); 4] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
+        let side = self.size_m.max(1.0);
+        let move_s = 1.875 * side / self.speed_mps.max(0.1);
+        let leg_s = move_s + SQUARE_HOLD_S;
+        let (a, b) = self.cruise();
+        let legs = ((b - a - SQUARE_HOLD_S) / leg_s).floor().max(0.0);
+        let tau = (t - a - SQUARE_HOLD_S).clamp(0.0, legs * leg_s);
+        let k = (tau / leg_s).floor();
+        let frac = if k >= legs {
+            0.0
+        } else {
+            smoothstep5((tau - k * leg_s) / move_s)
+        };
+        let (x0, y0) = CORNERS[(k as usize) % 4];
+        let (x1, y1) = CORNERS[(k as usize + 1) % 4];
+        Vector3::new(x0 + (x1 - x0) * frac, y0 + (y1 - y0) * frac, 0.0) * side
+    }
+
     /// Position at `t` (within one loop), m.
     pub fn position(&self, t: f64) -> Vector3<f64> {
         let z = self.height(t);
@@ -153,6 +183,7 @@ impl FlightPlan {
                 let theta = self.distance_at(t, speed) / (a * 2f64.sqrt());
                 Vector3::new(a * theta.sin(), a * 0.5 * (2.0 * theta).sin(), 0.0)
             }
+            PlanKind::Square => self.square_xy(t),
         };
         Vector3::new(xy.x, xy.y, z)
     }
@@ -161,6 +192,7 @@ impl FlightPlan {
     pub fn yaw(&self, t: f64) -> f64 {
         match self.kind {
             PlanKind::Laps => self.yaw0_rad + self.lap_distance(t) / self.size_m.max(1.0),
+            PlanKind::Square => self.yaw0_rad,
             _ => {
                 self.yaw0_rad + self.yaw_swing_rad * (2.0 * PI * t / 45.0).sin() * self.envelope(t)
             }
@@ -187,7 +219,7 @@ mod tests {
 
     #[test]
     fn every_kind_takes_off_flies_at_its_speed_and_lands() {
-        for kind in PlanKind::ALL {
+        for kind in PlanKind::ALL.into_iter().chain([PlanKind::Square]) {
             let p = plan(kind);
             assert!(p.position(1.0).norm() < 1e-9, "{kind:?} on the ground");
             let landed = p.position(p.duration_s + 1.0);

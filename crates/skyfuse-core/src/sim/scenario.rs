@@ -104,6 +104,42 @@ fn slow_flow_outdoors(scale: f64) -> Hardware {
     }
 }
 
+/// PX4's offboard square on GNSS + IMU + attitude only (what `px4_flight.py` flies in
+/// SITL): the IMU at 120 Hz as PX4 streams HIGHRES_IMU, and the GNSS 0.25 s later than
+/// the configuration assumes, so that its fixes are refused in the hard steps while
+/// nothing else holds the position.
+fn gnss_square() -> (Profile, Vec<StreamSpec>) {
+    let plan = super::plan::FlightPlan {
+        kind: super::plan::PlanKind::Square,
+        duration_s: 150.0,
+        height_m: 5.0,
+        speed_mps: 5.0,
+        size_m: 10.0,
+        climb_to_m: 5.0,
+        yaw_swing_rad: 0.0,
+        yaw0_rad: 0.0,
+    };
+    let streams = DEMO_STREAMS
+        .iter()
+        .filter(|s| matches!(s.input_id, "imu" | "attitude" | "gps"))
+        .map(|&s| match s.input_id {
+            "imu" => StreamSpec {
+                rate_hz: 120.0,
+                ..s
+            },
+            "gps" => StreamSpec {
+                delay_s: s.delay_s + GNSS_SQUARE_LATE_S,
+                ..s
+            },
+            _ => s,
+        })
+        .collect();
+    (Profile::Plan(plan), streams)
+}
+
+/// How much later than assumed the `gps-square` GNSS fixes come, s.
+pub const GNSS_SQUARE_LATE_S: f64 = 0.25;
+
 fn streams_without(ids: &[&str]) -> Vec<StreamSpec> {
     DEMO_STREAMS
         .iter()
@@ -203,6 +239,10 @@ pub const NAMES: &[(&str, &str)] = &[
         "flow-laps with the IMU, the flow reading 5 % slow",
     ),
     (
+        "gps-square",
+        "PX4's offboard square (10 m, 5 m/s moves, 4 m/s² at their ends) on GNSS + IMU + attitude only, the fixes 0.25 s later than configured: the only position source refused in the hard steps",
+    ),
+    (
         "flow-laps-slow",
         "flow-laps with the flow reading 5 % slow and no IMU: nothing sees the scale",
     ),
@@ -237,6 +277,10 @@ pub fn scenario(name: &str) -> Option<Scenario> {
         "flow-laps" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, false), vec![]),
         "flow-laps-imu" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, true), vec![]),
         "flow-laps-slow" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, false), vec![]),
+        "gps-square" => {
+            let (profile, streams) = gnss_square();
+            (profile, streams, vec![])
+        }
         "demo" => (Profile::Demo, all, vec![]),
         "hover" => (Profile::Hover, all, vec![]),
         "figure8" => (Profile::Figure8, all, vec![]),
