@@ -187,12 +187,6 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
             core.aided(t, "gnss");
             core.unaided_since = None;
             core.gnss.last_fused = Some(t);
-            // One fix says where the vehicle is, nothing has checked it yet: invalid
-            // until the next fixes have been fused over `reset_converge_s` (as after
-            // the lock-out reset). Valid at once, the link-loss flight sent poses 18 m
-            // off with σ 0.7 m in the 0.1 s the output took to follow.
-            let until = t + (cfg.reset_converge_s * 1e6) as i64;
-            core.converging = Some((source.to_string(), until, false));
             return;
         }
     }
