@@ -119,7 +119,7 @@ fn ros2_node_through_the_real_bridge_both_ways() {
     }
     eprintln!(
         "ros2 bridge ({} {}): wall {} s; pose vs odometry {} m RMS (yaw {}°, T265 frame at {}°); pose vs truth {} m RMS; \
-         latency median {} ms, p95 {} ms; readers {}; DDS writers {} s after skyfuse started, gone {} s after it stopped",
+         camera track (oriUAV_t265) vs pose {} m RMS; latency median {} ms, p95 {} ms; readers {}; DDS writers {} s after skyfuse started, gone {} s after it stopped",
         v["bridge"],
         v["bridge_version"],
         v["wall_s"],
@@ -127,6 +127,7 @@ fn ros2_node_through_the_real_bridge_both_ways() {
         v["pose_vs_odometry"]["fitted_yaw_deg"],
         v["pose_vs_odometry"]["odom_frame_yaw_deg"],
         v["pose_vs_truth"]["horizontal_rms_m"],
+        v["debug"]["oriUAV_t265"]["horizontal_vs_pose_rms_m"],
         v["latency_ms"]["median"],
         v["latency_ms"]["p95"],
         v["readers"],
