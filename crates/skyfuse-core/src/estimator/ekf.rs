@@ -738,7 +738,7 @@ impl Ekf {
         vel_var: f64,
     ) {
         let bias = self.x.fixed_rows::<3>(IDX_BG).into_owned();
-        let p_bb = self.p.view((IDX_BG, IDX_BG), (3, 3)).into_owned();
+        // The bias rows before the reset (their bias block is P_bb).
         let p_bx = self.p.rows(IDX_BG, 3).into_owned();
         self.reset_pos_vel(z - bias, vel, fix_var, vel_var);
         let n = self.n();
@@ -753,7 +753,7 @@ impl Ekf {
                 self.p[(j, IDX_P + i)] = c;
             }
             for k in 0..3 {
-                self.p[(IDX_P + i, IDX_P + k)] += p_bb[(i, k)];
+                self.p[(IDX_P + i, IDX_P + k)] += p_bx[(i, IDX_BG + k)];
             }
         }
         self.symmetrise();

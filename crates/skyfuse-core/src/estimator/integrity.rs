@@ -133,7 +133,7 @@ impl IntegrityConfig {
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!(
-                    "integrity.{name} must be a positive number, got {v}"
+                    "integrity.{name} must be a number of metres, 0 or more, got {v}"
                 ));
             }
         }

@@ -232,13 +232,11 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
         .as_ref()
         .and_then(|e| e.align_yaw_of(source).map(|i| e.x[i]))
         .unwrap_or(0.0);
+    // The segment's alignment error ε turns its positions about where it started:
+    // z = p + b + ε·ẑ×d, d the aligned displacement since then.
     let d = al.rot * (b.pos - al.anchor);
-    core.debug_point(
-        t,
-        DebugTopic::OriUavT265,
-        source,
-        z - Vector3::new(-d.y, d.x, 0.0) * eps,
-    );
+    let turned = Vector3::new(-d.y, d.x, 0.0);
+    core.debug_point(t, DebugTopic::OriUavT265, source, z - turned * eps);
     // WRLS: frame-to-frame displacement within a segment.
     if let (false, Some((t0, p0, _))) = (new_segment, st.last) {
         let dt = (t - t0) as f64 * 1e-6;
@@ -269,14 +267,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
     let mut r = rm.matrix() * c * rm.matrix().transpose();
     r[(0, 0)] += al.yaw_var * lever;
     r[(1, 1)] += al.yaw_var * lever;
-    // The segment's alignment error ε turns its positions about where it started:
-    // z = p + b + ε·ẑ×d, d the aligned displacement since then.
-    let d = al.rot * (b.pos - al.anchor);
     let accepted = match core.position_measurement("odometry", z, &r, Some(source)) {
         Some(mut m) if core.ekf_fuses_sensors(ctx) => {
-            let turned = Vector3::new(-d.y, d.x, 0.0);
             if let Some(e) = core.ekf.as_ref().and_then(|e| e.align_yaw_of(source)) {
-                let eps = core.ekf.as_ref().map_or(0.0, |k| k.x[e]);
                 for row in 0..2 {
                     m.set_jacobian(row, e, turned[row]);
                     m.set_innovation(row, m.innovation()[row] - eps * turned[row]);

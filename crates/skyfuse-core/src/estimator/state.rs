@@ -23,9 +23,9 @@ use std::collections::BTreeMap;
 
 /// A source counts as used for at most this long after its last sample, µs, however
 /// slow it is.
+const MAX_USED_GAP_US: i64 = 10_000_000;
 /// The longest step the filter predicts in one go, s (see `predict_to`).
 const MAX_PREDICT_STEP_S: f64 = 0.1;
-const MAX_USED_GAP_US: i64 = 10_000_000;
 
 /// Read-only context of one processing step.
 pub(crate) struct Ctx<'a> {
@@ -1183,10 +1183,10 @@ const NO_IMU_VELOCITY_TAU_S: f64 = 10.0;
 /// (m/s)²: far larger than any jump, so the measurement alone decides.
 const RESET_FORGET_VAR: f64 = 1e6;
 
-/// Why the estimate is not valid.
 /// The height's aiding timeout, in aiding timeouts (see [`Invalid::NoHeight`]).
 const HEIGHT_TIMEOUT_FACTOR: f64 = 2.0;
 
+/// Why the estimate is not valid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Invalid {
     NotInitialised,
