@@ -200,6 +200,12 @@ pub enum SourceSwitch {
     Attitude {
         attitude: &'static str,
     },
+    /// The IMU that drives the prediction (one at a time: each has its own biases).
+    Imu {
+        imu: String,
+        from: Option<String>,
+        why: &'static str,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]

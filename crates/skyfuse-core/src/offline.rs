@@ -96,6 +96,11 @@ pub struct Recorder {
     flow_taken: SourceMap<i64>,
     /// Sources with positions and no orientation (GNSS): `()` per id.
     position_only: SourceMap<()>,
+    /// Sources whose frame is north-referenced (GNSS, the autopilot's estimate): a
+    /// georeferenced estimate is registered to them by a translation alone.
+    north_referenced: SourceMap<()>,
+    /// Some pose was sent with a GNSS origin (its frame is north-referenced).
+    fused_georeferenced: bool,
     /// Time origin, µs (t = 0 in the files).
     pub t0_us: i64,
 }
@@ -162,6 +167,7 @@ impl Recorder {
                 let p = origin.to_enu(g.lat_deg, g.lon_deg, g.alt_m);
                 let cov = g.position_cov.as_deref().copied().unwrap_or_default();
                 self.position_only.get_or_insert_with(id, || ());
+                self.north_referenced.get_or_insert_with(id, || ());
                 push_source(self, id, t, p, UnitQuaternion::identity(), cov);
             }
             SensorData::Odometry(o) => {
@@ -191,6 +197,7 @@ impl Recorder {
                     Some(o.to_enu(lat, lon, alt))
                 });
                 if let Some(p) = p {
+                    self.north_referenced.get_or_insert_with(id, || ());
                     push_source(self, id, t, p, q, Matrix3::zeros());
                 }
             }
@@ -232,6 +239,7 @@ impl Recorder {
             return;
         }
         let Some(mut pose) = est.pose() else { return };
+        self.fused_georeferenced |= pose.origin.is_some();
         if let (Some(home), Some((lat, lon, alt))) = (self.truth_frame, pose.origin) {
             let (la, lo, al) = LocalEnu::new(lat, lon, alt).to_geodetic(pose.position);
             pose.position = home.to_enu(la, lo, al);
@@ -382,6 +390,16 @@ impl Consistency {
 /// Consistency of `estimate` (with `cov` per pose) against `reference` (matched by
 /// time within `max_diff_s`); `align`: register the frames at the first matched pose
 /// first (a reference in its own frame).
+/// How an estimate's frame is registered to the reference's at the first matched
+/// pose: both are level (z up), so at most by a heading and a translation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Registration {
+    /// Both north-referenced: the origins' offset only.
+    Translation,
+    /// A frame of its own (odometry, an estimate started without GNSS): its heading too.
+    Heading,
+}
+
 fn consistency(
     reference: &Trajectory,
     reference_cov: Option<&[Matrix3<f64>]>,
@@ -389,8 +407,9 @@ fn consistency(
     cov: &[Matrix3<f64>],
     pl: &[Protection],
     max_diff_s: f64,
-    align: bool,
+    registration: Option<Registration>,
 ) -> Option<Consistency> {
+    let align = registration.is_some();
     let (ie, ir) = crate::eval::matching_time_indices(&estimate.t, &reference.t, max_diff_s, 0.0);
     if ie.len() < 2 {
         return None;
@@ -401,9 +420,18 @@ fn consistency(
             nalgebra::Isometry3::from_parts(nalgebra::Translation3::from(p), q)
         };
         let to_ref = pose(r.p[0], r.q[0]) * pose(e.p[0], e.q[0]).inverse();
+        // Both frames are level (z up, gravity): only the heading is registered. The
+        // whole rotation of one instant would carry the two attitudes' roll and pitch
+        // difference there (1° is 1.7 m at 100 m) into every later pose as an error.
+        let m = to_ref.rotation.to_rotation_matrix();
+        let yaw = match registration {
+            Some(Registration::Heading) => m[(1, 0)].atan2(m[(0, 0)]),
+            _ => 0.0,
+        };
+        let rotation = *nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), yaw).matrix();
         crate::eval::Sim3 {
-            rotation: *to_ref.rotation.to_rotation_matrix().matrix(),
-            translation: to_ref.translation.vector,
+            rotation,
+            translation: r.p[0] - rotation * e.p[0],
             scale: 1.0,
         }
     } else {
@@ -772,7 +800,8 @@ fn score(
     let consistency = match reference {
         Reference::Truth(truth) | Reference::TruthInOwnFrame(truth) => {
             let t = truth_at(*truth, &rec.fused.t);
-            let register = matches!(reference, Reference::TruthInOwnFrame(_));
+            let register =
+                matches!(reference, Reference::TruthInOwnFrame(_)).then_some(Registration::Heading);
             consistency(
                 &t,
                 None,
@@ -792,6 +821,15 @@ fn score(
             } else {
                 r
             };
+            // Two north-referenced frames differ by their origins alone; a heading
+            // registered at one pose would turn every later error by that pose's
+            // heading difference.
+            let registration =
+                if rec.fused_georeferenced && rec.north_referenced.get(name).is_some() {
+                    Registration::Translation
+                } else {
+                    Registration::Heading
+                };
             consistency(
                 r,
                 own,
@@ -799,7 +837,7 @@ fn score(
                 &rec.fused_cov,
                 &rec.fused_pl,
                 *max_diff_s,
-                true,
+                Some(registration),
             )
         }),
     };
@@ -1580,6 +1618,62 @@ mod reference_tests {
                 && said.contains("never had a valid position")
                 && said.contains("gps (gnss)"),
             "{said}"
+        );
+    }
+
+    /// Two level frames differ by a heading at most; the attitudes of one instant
+    /// differ by their roll and pitch too, which a registration must not carry into
+    /// every later pose. And two north-referenced frames are registered by their
+    /// origins alone.
+    #[test]
+    fn frames_are_registered_level_and_north_referenced_ones_by_their_origins() {
+        let mut reference = Trajectory::default();
+        let mut est = Trajectory::default();
+        // At the first pose the two attitudes differ by 2° of pitch and 5° of heading
+        // (a reference's own attitude error there), later by nothing.
+        let first = UnitQuaternion::from_euler_angles(0.0, 2f64.to_radians(), 5f64.to_radians());
+        for i in 0..=100 {
+            let t = f64::from(i);
+            let p = Vector3::new(0.0, t, 0.0);
+            let q = if i == 0 {
+                first
+            } else {
+                UnitQuaternion::identity()
+            };
+            push(&mut reference, t, p, q);
+            push(
+                &mut est,
+                t,
+                p + Vector3::new(2.0, 1.0, 0.5),
+                UnitQuaternion::identity(),
+            );
+        }
+        let cov = vec![Matrix3::identity() * 0.01; est.t.len()];
+        let at = |r: Registration| {
+            consistency(&reference, None, &est, &cov, &[], 1e-6, Some(r))
+                .map(|c| (c.beyond_5_sigma, c.worst_ratio))
+                .expect("scored")
+        };
+        let (beyond, worst) = at(Registration::Translation);
+        assert_eq!(beyond, 0, "worst {worst}");
+        assert!(worst < 1e-6, "{worst}");
+        // Turned by the 5° (8.7 m at 100 m) but not pitched by the 2° (3.5 m of height).
+        let (_, worst) = at(Registration::Heading);
+        assert!(worst > 50.0, "{worst}");
+        let turned = consistency(
+            &reference,
+            None,
+            &est,
+            &cov,
+            &[],
+            1e-6,
+            Some(Registration::Heading),
+        )
+        .expect("scored");
+        assert!(
+            turned.within_3_sigma[2] > 0.99,
+            "{:?}",
+            turned.within_3_sigma
         );
     }
 }

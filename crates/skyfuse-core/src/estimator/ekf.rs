@@ -107,6 +107,10 @@ pub struct Ekf {
     /// would take for information (a vehicle standing on the ground "seeing" its
     /// camera's delay to 5 ms).
     pub accel_world: Vector3<f64>,
+    /// Velocity random walk on top of the IMU's white noise, per axis (east, north,
+    /// up), m²/s³: what the innovations showed the prediction misses (see
+    /// [`super::imu::PredictionNoise`]).
+    pub vel_q_extra: Vector3<f64>,
 }
 
 impl Ekf {
@@ -145,6 +149,7 @@ impl Ekf {
             align_yaws: Vec::new(),
             align_yaw_rw: 0.0,
             accel_world: Vector3::zeros(),
+            vel_q_extra: Vector3::zeros(),
         }
     }
 
@@ -236,6 +241,17 @@ impl Ekf {
             .iter()
             .find(|(s, _)| s == source)
             .map(|&(_, i)| i)
+    }
+
+    /// Holds every delay state within ±`max_s` (EKF2's constrainStates for its biases):
+    /// a delay is seen through what the source measures changing, and a model error of
+    /// the same shape (a vertical velocity the IMU got wrong, against a barometer) is
+    /// explained as a delay just as well; unbounded, a barometer's ran to 0.8 s on a
+    /// real log and the velocity error it hid grew on.
+    pub fn constrain_delays(&mut self, max_s: f64) {
+        for &(_, i) in &self.delays {
+            self.x[i] = self.x[i].clamp(-max_s, max_s);
+        }
     }
 
     /// The index of `source`'s delay state, if it has one.
@@ -364,6 +380,12 @@ impl Ekf {
             next[(IDX_P + i, IDX_V + i)] += q * dt.powi(3) / 2.0;
             next[(IDX_V + i, IDX_P + i)] += q * dt.powi(3) / 2.0;
             next[(IDX_V + i, IDX_V + i)] += q * dt * dt;
+            // A velocity random walk: rate-independent, whatever the IMU's rate.
+            let w = self.vel_q_extra[i];
+            next[(IDX_P + i, IDX_P + i)] += w * dt.powi(3) / 3.0;
+            next[(IDX_P + i, IDX_V + i)] += w * dt * dt / 2.0;
+            next[(IDX_V + i, IDX_P + i)] += w * dt * dt / 2.0;
+            next[(IDX_V + i, IDX_V + i)] += w * dt;
             next[(IDX_BA + i, IDX_BA + i)] += bias_rw * bias_rw * dt;
         }
         // Speed over the ground (EKF2's terrain process noise; a move nobody saw, a carry,

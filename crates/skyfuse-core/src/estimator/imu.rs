@@ -63,11 +63,87 @@ pub struct ImuState {
     pub rate: Option<(i64, Vector3<f64>)>,
     /// Each IMU source's last sample time, used or not.
     pub last_seen: Vec<(Arc<str>, i64)>,
+    /// The IMU that drives the prediction. One at a time: each IMU has its own biases
+    /// (three in one autopilot read 0.2, 0.4 and 0.7 m/s² apart at rest, and one of
+    /// them 2 m/s² off in fast flight), and the filter has one set of bias states, so
+    /// samples of several taken in turn are a bias that jumps with every sample.
+    pub selected: Option<Arc<str>>,
+    /// What the prediction misses, learnt from the velocity innovations.
+    pub noise: PredictionNoise,
+}
+
+/// The prediction's noise, checked against what the velocity measurements say.
+///
+/// An IMU's datasheet noise is the least of what integrating it gets wrong: the
+/// attitude it is turned with (an AHRS off by 1° is 0.17 m/s²), vibration aliased
+/// into a logged or bridged stream, clipping, a mounting the autopilot does not
+/// know. On real logs the IMU's velocity left the GNSS's by 0.3–1.2 m/s in a second
+/// where the noise model allowed 0.03: every fix was then refused as an outlier, and
+/// the filter claimed 5 cm/s while it was 2 m/s off. So the innovations of every
+/// velocity measurement (yᵢ²/Sᵢ, 1 on average when the model is right) drive a
+/// velocity random walk added to the prediction: raised while they are larger than
+/// their variances say, lowered back while smaller (covariance matching, in a
+/// multiplicative step so that it neither oscillates nor goes negative). Horizontal and
+/// vertical apart: vibration and a tilt error show differently in each.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PredictionNoise {
+    /// Mean of yᵢ²/Sᵢ, horizontal and vertical rows, over about [`NOISE_AVERAGE_ROWS`].
+    pub ratio: [f64; 2],
+    /// The velocity random walk, horizontal and vertical, m²/s³.
+    pub q: [f64; 2],
+}
+
+/// Rows averaged in the innovation ratio (about 2 s of a 5 Hz GNSS's two axes).
+pub const NOISE_AVERAGE_ROWS: f64 = 20.0;
+/// One row's ratio counts at most this much (a 5σ outlier): a glitch moves the mean
+/// by at most 25/20, a lasting misfit moves it all the way.
+const NOISE_RATIO_CAP: f64 = 25.0;
+/// Step of ln q per row and per unit of (ratio − 1).
+const NOISE_STEP: f64 = 0.05;
+/// Bounds of the random walk, m²/s³: from nothing the model misses to 1 m/s/√s, more
+/// than any IMU that still helps.
+pub const NOISE_Q_MIN: f64 = 1e-6;
+pub const NOISE_Q_MAX: f64 = 1.0;
+
+impl Default for PredictionNoise {
+    fn default() -> Self {
+        Self {
+            ratio: [1.0; 2],
+            q: [NOISE_Q_MIN; 2],
+        }
+    }
+}
+
+impl PredictionNoise {
+    /// One row of a velocity measurement: innovation `y`, variance `s`, on the
+    /// vertical axis or not.
+    pub fn observe(&mut self, y: f64, s: f64, vertical: bool) {
+        if !(y.is_finite() && s.is_finite() && s > 0.0) {
+            return;
+        }
+        let i = usize::from(vertical);
+        let r = (y * y / s).min(NOISE_RATIO_CAP);
+        self.ratio[i] += (r - self.ratio[i]) / NOISE_AVERAGE_ROWS;
+        let step = (NOISE_STEP * (self.ratio[i] - 1.0)).clamp(-0.5, 0.5);
+        self.q[i] = (self.q[i] * step.exp()).clamp(NOISE_Q_MIN, NOISE_Q_MAX);
+    }
+
+    /// Per axis (east, north, up), m²/s³.
+    pub fn per_axis(&self) -> Vector3<f64> {
+        Vector3::new(self.q[0], self.q[0], self.q[1])
+    }
 }
 
 impl ImuState {
     /// The interval since `source`'s previous sample (none for its first), and `t`
     /// remembered as its latest.
+    fn last_of(&self, source: &str) -> Option<i64> {
+        self.last_seen
+            .iter()
+            .find(|(s, _)| s.as_ref() == source)
+            .map(|(_, t)| *t)
+    }
+
     fn interval(&mut self, source: &str, t: i64) -> Option<i64> {
         match self
             .last_seen
@@ -253,6 +329,40 @@ fn accel_var(imu: &Imu, dt: f64, cfg: &EstimatorConfig) -> f64 {
 pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
     if let Err(why) = checks(imu) {
         core.reject(t, source, why, ctx);
+        return;
+    }
+    // Control: which IMU drives the prediction. The selected one while it keeps
+    // sending (its own continue condition below); another when it has stopped.
+    let selected_stale = match core.imu.selected.as_deref() {
+        None => true,
+        Some(s) if s == source => false,
+        Some(s) => core
+            .imu
+            .last_of(s)
+            .is_none_or(|last| t - last > MAX_IMU_INTERVAL_US),
+    };
+    if selected_stale {
+        let from = core.imu.selected.replace(Arc::from(source));
+        if from.is_some() {
+            core.imu.last = None;
+        }
+        let from = from.map(|f| f.to_string());
+        core.event(
+            t,
+            Some(source),
+            match &from {
+                Some(f) => format!("IMU {source} drives the prediction now ({f} stopped)"),
+                None => format!("IMU {source} drives the prediction"),
+            },
+            Event::SourceSwitch(crate::event::SourceSwitch::Imu {
+                imu: source.to_string(),
+                why: if from.is_some() { "stopped" } else { "first" },
+                from,
+            }),
+        );
+    } else if core.imu.selected.as_deref() != Some(source) {
+        // A standby IMU: checked and timed, ready to take over.
+        core.imu.interval(source, t);
         return;
     }
     // Continue condition: the previous sample close enough to integrate from; else

@@ -343,6 +343,16 @@ impl Core {
             m
         };
         let out = bank.update(m, gate, aiding.then_some(source));
+        if aiding && imu_drives {
+            self.learn_prediction_noise(m, &out);
+        }
+        let Some(bank) = self.ekf.as_mut() else {
+            return false;
+        };
+        if out.accepted && aiding && ctx.cfg.delay_std_s > 0.0 {
+            let max_s = DELAY_BOUND_SIGMAS * ctx.cfg.delay_std_s;
+            bank.each(|e| e.constrain_delays(max_s));
+        }
         if out.accepted && aiding {
             if Channels::of(m).vertical {
                 self.last_v_aiding = Some(t);
@@ -357,6 +367,34 @@ impl Core {
             self.reset_if_locked_out(t, source, m, ctx);
         }
         out.accepted
+    }
+
+    /// The velocity rows of `m` (those that read the velocity states) against what
+    /// the update said of them: the prediction's noise learns from them (accepted or
+    /// not: a model that misses is what makes them refused).
+    fn learn_prediction_noise(&mut self, m: &Measurement, out: &ekf::UpdateOutcome) {
+        let (y, s) = (out.innovation(), out.innovation_var());
+        let mut changed = false;
+        for row in 0..m.rows().min(y.len()) {
+            let mut reads = [false; 3];
+            for (k, h) in m.jacobian_row(row).entries() {
+                if (IDX_V..IDX_V + 3).contains(&k) && h != 0.0 {
+                    reads[k - IDX_V] = true;
+                }
+            }
+            if !reads.iter().any(|&r| r) {
+                continue;
+            }
+            let vertical = reads[2] && !reads[0] && !reads[1];
+            self.imu.noise.observe(y[row], s[row], vertical);
+            changed = true;
+        }
+        if changed {
+            let q = self.imu.noise.per_axis();
+            if let Some(bank) = self.ekf.as_mut() {
+                bank.each(|e| e.vel_q_extra = q);
+            }
+        }
     }
 
     /// The rule against locking out the only source: a measurement refused while
@@ -1178,6 +1216,10 @@ fn with_delay(
 /// stand-in's acceleration noise (`no_imu_accel_noise`, 3 m/s²) its speed's 1σ at rest is
 /// about 3 m/s.
 const NO_IMU_VELOCITY_TAU_S: f64 = 10.0;
+
+/// A delay state is held within this many of its prior 1σ (`delay_std_s`): 0.4 s at
+/// the default, beyond the 0–300 ms the randomised flights draw.
+const DELAY_BOUND_SIGMAS: f64 = 4.0;
 
 /// The variance the reset states take before the measurement they reset to, m² or
 /// (m/s)²: far larger than any jump, so the measurement alone decides.

@@ -1239,3 +1239,184 @@ fn the_only_position_source_refused_is_reset_to_not_locked_out() {
     assert!(accepted > before + 100, "{accepted} vs {before}");
     assert!(est.pose().is_some_and(|p| p.valid));
 }
+
+/// The DEMO streams of some kinds only.
+fn streams_of(kinds: &[crate::sample::SensorKind]) -> Vec<crate::sim::sensors::StreamSpec> {
+    DEMO_STREAMS
+        .iter()
+        .filter(|s| kinds.contains(&s.kind))
+        .copied()
+        .collect()
+}
+
+/// Worst horizontal error of the valid poses after `from_s` (at each fix), the IMUs
+/// that drove the prediction, and the estimator at the end, of a GNSS + IMU + attitude
+/// flight whose every sample `batch` turns into what goes in (itself, more, nothing).
+fn gnss_imu_flight(
+    seed: u64,
+    duration_s: f64,
+    from_s: f64,
+    batch: impl Fn(&Sample, &TruthState) -> Vec<Sample>,
+) -> (f64, Vec<String>, Estimator) {
+    let (score, driving, est) =
+        gnss_imu_flight_scored(sim_cfg(Mode::Ekf), seed, duration_s, from_s, batch);
+    (score.worst_m, driving, est)
+}
+
+/// What [`gnss_imu_flight`] measures of the valid poses.
+#[derive(Debug, Default)]
+struct FlightScore {
+    worst_m: f64,
+    /// Poses within 3σ on east and on north (the smaller), and how many.
+    within_3_sigma: f64,
+    poses: usize,
+}
+
+fn gnss_imu_flight_scored(
+    cfg: EstimatorConfig,
+    seed: u64,
+    duration_s: f64,
+    from_s: f64,
+    batch: impl Fn(&Sample, &TruthState) -> Vec<Sample>,
+) -> (FlightScore, Vec<String>, Estimator) {
+    use crate::sample::SensorKind as K;
+    let streams = streams_of(&[K::Imu, K::Attitude, K::Gnss]);
+    let (samples, origin) = sim_samples_of(&streams, seed, duration_s);
+    let mut est = Estimator::new(cfg);
+    let mut frame = Frame {
+        sim: origin,
+        ours: None,
+    };
+    let (mut worst, mut driving) = (0.0f64, vec![]);
+    let (mut within, mut poses) = ([0usize; 2], 0usize);
+    for (s, tr) in &samples {
+        for b in &batch(s, tr) {
+            for e in est.process(b) {
+                if let crate::event::Event::SourceSwitch(crate::event::SourceSwitch::Imu {
+                    imu,
+                    ..
+                }) = &e.what
+                {
+                    driving.push(imu.clone());
+                }
+            }
+        }
+        if tr.t < from_s || s.source.as_ref() != "gps" {
+            continue;
+        }
+        if let Some(p) = est.pose().filter(|p| p.valid) {
+            let at = frame.in_our_frame(p.origin, truth(p.time_us as f64 * 1e-6).position);
+            let e = p.position - at;
+            worst = worst.max(e.xy().norm());
+            poses += 1;
+            for (a, w) in within.iter_mut().enumerate() {
+                *w += usize::from(e[a].abs() <= 3.0 * p.position_cov[(a, a)].sqrt());
+            }
+        }
+    }
+    let score = FlightScore {
+        worst_m: worst,
+        within_3_sigma: within[0].min(within[1]) as f64 / poses.max(1) as f64,
+        poses,
+    };
+    (score, driving, est)
+}
+
+/// `s` from another source.
+fn renamed(s: &Sample, source: &str, data: SensorData) -> Sample {
+    Sample {
+        source: Arc::from(source),
+        data,
+        ..s.clone()
+    }
+}
+
+/// Two IMUs, the second going wrong in flight (2 m/s² of vibration rectification, as
+/// one of three IMUs did on a real log): one drives the prediction, the other waits
+/// and never pulls it (each IMU has its own biases, the filter one set of them).
+#[test]
+fn one_imu_drives_the_prediction_and_a_second_one_waits() {
+    let (alone, _, _) = gnss_imu_flight(7, 60.0, 25.0, |s, _| vec![s.clone()]);
+    let (worst, driving, _) = gnss_imu_flight(7, 60.0, 25.0, |s, tr| match &s.data {
+        SensorData::Imu(imu) => {
+            // From 20 s on, 2 m/s² wandering with a 3 s period: no bias state follows it.
+            let mut bad = imu.clone();
+            if tr.t >= 20.0 {
+                let w = (tr.t * 2.0).sin();
+                bad.accel = bad.accel.map(|a| a + Vector3::new(2.0 * w, -1.5 * w, -2.0));
+            }
+            vec![s.clone(), renamed(s, "imu_2", SensorData::Imu(bad))]
+        }
+        _ => vec![s.clone()],
+    });
+    println!(
+        "worst horizontal error: one IMU {alone:.2} m, beside a failing second {worst:.2} m; driving {driving:?}"
+    );
+    assert_eq!(driving, ["imu"], "{driving:?}");
+    assert!(worst < alone + 0.2, "{worst} vs {alone}");
+}
+
+/// The IMU that drives falls silent: the next one takes over, said, and the pose
+/// stays valid and as good.
+#[test]
+fn a_second_imu_takes_over_when_the_first_stops() {
+    let (alone, _, _) = gnss_imu_flight(8, 50.0, 20.0, |s, _| vec![s.clone()]);
+    let (worst, driving, est) = gnss_imu_flight(8, 50.0, 20.0, |s, tr| match &s.data {
+        SensorData::Imu(_) if tr.t >= 30.0 => vec![renamed(s, "imu_2", s.data.clone())],
+        SensorData::Imu(_) => vec![s.clone(), renamed(s, "imu_2", s.data.clone())],
+        _ => vec![s.clone()],
+    });
+    println!("driving {driving:?}; worst {worst:.2} m against {alone:.2} m with one IMU");
+    assert_eq!(driving, ["imu", "imu_2"], "{driving:?}");
+    assert!(est.pose().is_some_and(|p| p.valid));
+    assert!(worst < alone + 0.2, "{worst} vs {alone}");
+}
+
+/// An attitude that is off by what an autopilot's is in flight (a tilt error of up to
+/// 2° wandering over 12–18 s: 0.3 m/s² of specific force the noise model does not
+/// have): the filter learns from the GNSS velocities that its prediction is worse than
+/// modelled, keeps fusing the fixes, and its σ holds the truth. Without the learning:
+/// 81 % within 3σ, a fifth of the fixes refused.
+///
+/// The GNSS's delay state is off here (`delay_std_s` 0): with it, the velocities
+/// "see" a 0.3 ± 0.04 s delay in the wandering tilt (an attitude error comes and goes
+/// with the vehicle's accelerations, as a delay's signature does) and 40 % of the poses
+/// are within 3σ, learning or not. That is a weakness of the delay states still open
+/// (BENCHMARKS.md, stop 50).
+#[test]
+fn a_prediction_worse_than_its_model_is_learnt_from_the_velocities() {
+    let tilted = |s: &Sample, tr: &TruthState| {
+        let roll = 2f64.to_radians() * (tr.t * 0.5).sin();
+        let pitch = 2f64.to_radians() * (tr.t * 0.35 + 1.0).sin();
+        let tilt = UnitQuaternion::from_euler_angles(roll, pitch, 0.0);
+        let data = match &s.data {
+            SensorData::Attitude(a) => SensorData::Attitude(Attitude {
+                orientation: a.orientation * tilt,
+                ..a.clone()
+            }),
+            SensorData::Imu(i) => SensorData::Imu(Imu {
+                orientation: i.orientation.map(|q| q * tilt),
+                ..i.clone()
+            }),
+            other => other.clone(),
+        };
+        vec![renamed(s, &s.source, data)]
+    };
+    let cfg = EstimatorConfig {
+        delay_std_s: 0.0,
+        ..sim_cfg(Mode::Ekf)
+    };
+    let (score, _, est) = gnss_imu_flight_scored(cfg, 11, 120.0, 30.0, tilted);
+    let gps = est
+        .state_summary()
+        .sources
+        .get("gps")
+        .cloned()
+        .expect("gps");
+    let refused = gps.rejected as f64 / (gps.accepted + gps.rejected).max(1) as f64;
+    println!("{score:?}; GNSS refused {:.1} %", 100.0 * refused);
+    assert!(score.poses > 500, "{score:?}");
+    assert!(score.within_3_sigma >= 0.97, "{score:?}");
+    assert!(score.worst_m < 1.0, "{score:?}");
+    assert!(refused < 0.02, "{refused}");
+}
