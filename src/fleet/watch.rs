@@ -9,7 +9,7 @@
 //! Each websocket client holds only the newest frame (a watch channel): a slow browser
 //! skips frames and stalls nothing.
 
-use super::{Fleet, FleetView, ALIVE, EVENTS, HEALTH, POSE};
+use super::{Fleet, FleetView, ALIVE, EVENTS, HEALTH, POSE, SUMMARY};
 use crate::clock::now_us;
 use crate::config::FleetConfig;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
@@ -86,6 +86,20 @@ impl FleetWatch {
         f
     }
 
+    /// `/metrics` of `skyfuse monitor`: the fleet in aggregate (no per-vehicle series).
+    pub fn metrics_text(&self) -> String {
+        let now = now_us();
+        let f = self.refreshed(now);
+        let (counters, presence) = (f.counters(), f.presence_counts(now));
+        drop(f);
+        crate::http::metrics::render_fleet(
+            counters,
+            presence,
+            self.cfg.max_vehicles,
+            crate::http::metrics::ProcessStats::read(),
+        )
+    }
+
     fn view_of(&self, f: &Fleet, now: i64, with_tracks: bool) -> FleetView {
         FleetView {
             monitor: self.always,
@@ -126,7 +140,15 @@ impl FleetWatch {
     async fn subscribe(&self) {
         let mut subs = self.subscribers.lock().await;
         let watch = self.cfg.watch.trim_end_matches('/');
-        for leaf in [POSE, HEALTH, EVENTS] {
+        // The summary carries what the view shows of pose and health once a second; the
+        // full-rate keys only when asked for (each subscription pulls every matching
+        // sample of the fleet across the network to this process).
+        let leaves: &[&str] = if self.cfg.summary_only {
+            &[SUMMARY, EVENTS]
+        } else {
+            &[SUMMARY, POSE, HEALTH, EVENTS]
+        };
+        for &leaf in leaves {
             let key = format!("{watch}/{leaf}");
             let fleet = self.fleet.clone();
             let last_warn = self.last_warn_us.clone();
