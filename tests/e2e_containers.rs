@@ -527,6 +527,8 @@ fn the_fleet_compose_shows_three_vehicles_across_two_routers_on_one_monitor() {
         services: &[
             "router-a",
             "router-b",
+            "router-gs",
+            "standins",
             "drone1",
             "drone1-sim",
             "drone2",
@@ -609,7 +611,10 @@ fn the_fleet_compose_shows_three_vehicles_across_two_routers_on_one_monitor() {
     // The page itself comes from the monitor.
     let (code, page) = http_get(monitor_port, "/fleet").expect("GET /fleet");
     assert_eq!(code, 200);
-    assert!(page.contains("fleet.js"));
+    assert!(page.contains("js/fleet-main.js"));
+    let (code, module) = http_get(monitor_port, "/js/fleet-main.js").expect("GET module");
+    assert_eq!(code, 200);
+    assert!(module.contains("import "), "an ES module: {module}");
     let health = podman.output(&["healthcheck", "run", &stack.container("monitor")]);
     assert!(health.status.success(), "the monitor's HEALTHCHECK failed");
 }

@@ -220,11 +220,19 @@ fn warn_limited(last_warn_us: &AtomicI64, messages: impl Iterator<Item = String>
     }
 }
 
-/// `/fleet`, `/fleet.js`, `/api/v1/fleet`, `/ws/fleet`.
+/// `/fleet`, its modules under `/js/`, `/api/v1/fleet`, `/ws/fleet`. Merged into both
+/// the vehicle's dashboard and `skyfuse monitor`, so `/js/` is routed here, once.
 pub fn routes(watch: Arc<FleetWatch>) -> Router {
     Router::new()
         .route("/fleet", get(|| crate::http::assets::serve("fleet.html")))
-        .route("/fleet.js", get(|| crate::http::assets::serve("fleet.js")))
+        .route(
+            "/js/{file}",
+            get(
+                |axum::extract::Path(file): axum::extract::Path<String>| async move {
+                    crate::http::assets::serve_module(&file)
+                },
+            ),
+        )
         .route("/api/v1/fleet", get(fleet_json))
         .route("/ws/fleet", get(ws))
         .with_state(watch)
