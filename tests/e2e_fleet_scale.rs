@@ -116,7 +116,7 @@ fn a_hundred_vehicles_through_two_routers_all_present_one_stops_a_router_restart
             .as_array()
             .map_or(0, |a| a.iter().filter(|v| v["frame"] == "geo").count())
     };
-    let f = monitor.wait_json("/api/v1/fleet", Duration::from_secs(40), |f| {
+    let f = monitor.wait_json("/api/v1/fleet?tracks=false", Duration::from_secs(40), |f| {
         names(f, "live").len() == 100 && placed_of(f) == 100
     });
     let all = names(&f, "");
@@ -124,6 +124,11 @@ fn a_hundred_vehicles_through_two_routers_all_present_one_stops_a_router_restart
     assert_eq!(all.len(), unique.len(), "a vehicle listed twice: {all:?}");
     assert_eq!(unique, expected, "missing or extra vehicles");
     assert_eq!(names(&f, "live").len(), 100, "not all live: {f}");
+    assert!(
+        f["vehicles"][0].get("track").is_none(),
+        "asked without tracks: {}",
+        f["vehicles"][0]
+    );
     assert_eq!(
         placed_of(&f),
         100,
@@ -166,7 +171,7 @@ fn a_hundred_vehicles_through_two_routers_all_present_one_stops_a_router_restart
     // 3. One stops hard: grey within GONE_WITHIN, the 99 others stay live.
     let stopped = Instant::now();
     lone.kill();
-    let f = monitor.wait_json("/api/v1/fleet", GONE_WITHIN * 2, |f| {
+    let f = monitor.wait_json("/api/v1/fleet?tracks=false", GONE_WITHIN * 2, |f| {
         presence_of(f, "v0099").as_deref() == Some("gone")
     });
     let to_gone = stopped.elapsed();
@@ -217,7 +222,7 @@ fn a_hundred_vehicles_through_two_routers_all_present_one_stops_a_router_restart
     // stand-ins reconnect as clients, router B re-links); B's 49 never leave.
     router_a.stop();
     let restarted = Instant::now();
-    let f = monitor.wait_json("/api/v1/fleet", Duration::from_secs(10), |f| {
+    let f = monitor.wait_json("/api/v1/fleet?tracks=false", Duration::from_secs(10), |f| {
         presence_of(f, "v0000").as_deref() == Some("gone")
     });
     assert_eq!(
@@ -231,7 +236,7 @@ fn a_hundred_vehicles_through_two_routers_all_present_one_stops_a_router_restart
         "router B's stay: {f}"
     );
     router_a.restart();
-    let f = monitor.wait_json("/api/v1/fleet", Duration::from_secs(60), |f| {
+    let f = monitor.wait_json("/api/v1/fleet?tracks=false", Duration::from_secs(60), |f| {
         names(f, "live").len() == 99
             && (0..50).all(|i| presence_of(f, &format!("v{i:04}")).as_deref() == Some("live"))
     });

@@ -73,9 +73,15 @@ impl FleetWatch {
 
     /// The view now, with the tracks.
     pub fn view(&self) -> FleetView {
+        self.view_tracks(true)
+    }
+
+    /// The view now, with or without the tracks (a thousand vehicles' full tracks are
+    /// 600 000 points: a poller that wants only states asks without).
+    pub fn view_tracks(&self, with_tracks: bool) -> FleetView {
         let now = now_us();
         let f = self.refreshed(now);
-        self.view_of(&f, now, true)
+        self.view_of(&f, now, with_tracks)
     }
 
     /// The fleet, locked, its pending poses read (unreadable ones logged, limited).
@@ -238,9 +244,28 @@ pub fn routes(watch: Arc<FleetWatch>) -> Router {
         .with_state(watch)
 }
 
-async fn fleet_json(State(w): State<Arc<FleetWatch>>) -> Response {
+/// `?tracks=false` leaves the tracks out.
+#[derive(Debug, serde::Deserialize)]
+struct FleetQuery {
+    #[serde(default = "yes")]
+    tracks: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+async fn fleet_json(
+    State(w): State<Arc<FleetWatch>>,
+    axum::extract::Query(query): axum::extract::Query<FleetQuery>,
+) -> Response {
     w.look();
-    ([(header::CACHE_CONTROL, "no-store")], Json(w.view())).into_response()
+    let tracks = query.tracks;
+    (
+        [(header::CACHE_CONTROL, "no-store")],
+        Json(w.view_tracks(tracks)),
+    )
+        .into_response()
 }
 
 async fn ws(State(w): State<Arc<FleetWatch>>, up: WebSocketUpgrade) -> Response {
