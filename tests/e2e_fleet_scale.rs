@@ -183,6 +183,27 @@ fn a_hundred_vehicles_through_two_routers_all_present_one_stops_a_router_restart
         to_gone.as_secs_f64()
     );
 
+    // 3a. Prometheus: the fleet in aggregate, no series per vehicle (a hundred vehicles
+    // give the same handful of lines as one).
+    let (code, metrics) = http_get(monitor.http_port, "/metrics").expect("GET /metrics");
+    assert_eq!(code, 200, "{metrics}");
+    for line in [
+        "skyfuse_fleet_vehicles{presence=\"live\"} 99",
+        "skyfuse_fleet_vehicles{presence=\"gone\"} 1",
+        "skyfuse_fleet_refused_total 0",
+    ] {
+        assert!(metrics.contains(line), "{line} in:\n{metrics}");
+    }
+    let samples: Vec<&str> = metrics
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.is_empty())
+        .collect();
+    assert!(samples.len() < 20, "{} series:\n{metrics}", samples.len());
+    assert!(
+        !metrics.contains("v00"),
+        "a vehicle named in /metrics:\n{metrics}"
+    );
+
     // 3b. The page at this size (Chromium): only the rows in view in the DOM, the last
     // ones reachable by scrolling, search finds one, sort by state puts the gone one
     // first, the map clusters.
