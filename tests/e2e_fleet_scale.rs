@@ -233,6 +233,32 @@ fn a_hundred_vehicles_through_two_routers_all_present_one_stops_a_router_restart
         assert_eq!(p["state_first"]["name"], "v0099", "gone first: {p}");
         assert_eq!(p["state_first"]["presence"], "gone", "{p}");
         assert!(p["clusters"].as_u64().unwrap_or(0) >= 1, "{p}");
+        // A click on the largest cluster lists exactly its vehicles (at least two).
+        let picked = p["cluster_ids"].as_array().map_or(0, Vec::len);
+        assert!(picked >= 2, "{p}");
+        // Listed: that many of 100, and every row in view one of them (a large cluster
+        // may have more rows than the view).
+        assert_eq!(p["cluster_shown"], format!("{picked} of 100 shown"), "{p}");
+        let ids: Vec<&serde_json::Value> = p["cluster_ids"]
+            .as_array()
+            .map_or(vec![], |a| a.iter().collect());
+        let rows = p["cluster_rows"]
+            .as_array()
+            .map_or(vec![], |a| a.iter().collect::<Vec<_>>());
+        assert!(
+            !rows.is_empty() && rows.iter().all(|r| ids.contains(r)),
+            "{p}"
+        );
+        assert!(
+            p["cluster_note"]
+                .as_str()
+                .is_some_and(|t| t.contains(&format!("{picked} picked"))),
+            "{p}"
+        );
+        assert_eq!(
+            p["after_clear_shown"], "",
+            "every vehicle listed again: {p}"
+        );
         eprintln!(
             "fleet page at 100 vehicles: {in_dom} rows in the DOM, {} clusters, {} fps",
             p["clusters"], p["fps"]

@@ -9,7 +9,9 @@ Waits until the page counts --vehicles vehicles, then prints one JSON line: `row
 (the list's <tr>s: only those in view), `scroll_rows` (names in the DOM sorted by name
 and scrolled to the end: the last vehicles of the list), `search_rows` (names shown for --search),
 `state_first` (the first row's name and presence sorted by state, worst first),
-`clusters` (clusters on the map), `fps` (median over --seconds), `errors` (page
+`clusters` (clusters on the map), `cluster_ids` and `cluster_rows` (the largest
+cluster's vehicles, and the rows listed after a click on it), `cluster_note`,
+`after_clear_shown` (the list's note once the pick is cleared: empty), `fps` (median over --seconds), `errors` (page
 errors and console errors). Exits 1 with {"ok": false, ...} if the page never shows the
 fleet.
 """
@@ -59,6 +61,20 @@ def main():
             time.sleep(0.3)
             out["scroll_rows"] = [r["name"] for r in page.evaluate(ROWS)]
             page.evaluate("document.getElementById('fleet-list').scrollTop = 0")
+            # A click on a cluster lists just its vehicles; the ✕ shows all again.
+            hits = page.evaluate("window.fleetMap.hits()")
+            big = max(hits, key=lambda x: len(x["ids"]))
+            box = page.locator("#fleet-map").bounding_box()
+            page.mouse.click(box["x"] + big["x"], box["y"] + big["y"])
+            time.sleep(0.3)
+            out["cluster_ids"] = sorted(big["ids"])
+            out["cluster_rows"] = sorted(r["id"] for r in page.evaluate(
+                "() => [...document.querySelectorAll('#fleet-rows tr')].map((tr) => ({id: tr.dataset.id}))"))
+            out["cluster_note"] = page.inner_text("#fleet-picked")
+            out["cluster_shown"] = page.inner_text("#fleet-shown")
+            page.click("#fleet-picked button")
+            time.sleep(0.3)
+            out["after_clear_shown"] = page.inner_text("#fleet-shown")
             page.fill("#fleet-search", args.search)
             time.sleep(0.3)
             out["search_rows"] = [r["name"] for r in page.evaluate(ROWS)]

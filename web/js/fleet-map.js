@@ -16,6 +16,8 @@ const ctx = canvas.getContext("2d");
 let hits = [];
 let onReveal = () => {};
 export function onMarkerClick(fn) { onReveal = fn; }
+// For tests: where the last draw put its clusters and markers (CSS px on the canvas).
+window.fleetMap = { hits: () => hits.map((x) => ({ x: x.x, y: x.y, r: x.r, ids: x.ids })) };
 
 function niceStep(span) {
   const raw = span / 6, p = Math.pow(10, Math.floor(Math.log10(raw))), m = raw / p;
