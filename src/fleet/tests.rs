@@ -428,3 +428,46 @@ fn slots_are_reused_lowest_first_after_a_vehicle_is_forgotten() {
     assert_eq!(row(&v, "skyfuse/e").slot, 1);
     assert_eq!(row(&v, "skyfuse/f").slot, 3);
 }
+
+#[test]
+fn the_summary_rounds_what_a_map_shows_and_leaves_out_what_the_view_does_not_read() {
+    let pose = json!({
+        "time_us": 7, "frame": "map",
+        "position": [5.895998034390311, -0.7185101202318966, 1.7917912186656828],
+        "orientation": [-0.010617414527257387, -0.011077593999817224, 0.34240022377629004, 0.9394288925607333],
+        "velocity": [0.123456789, 0.0, -2.5],
+        "position_covariance": [0.000016123456, 0.0, 0.0, 0.0, 123456.789, 0.0, 0.0, 0.0, 1.0],
+        "velocity_covariance": [0.0, 0, 0, 0, 0, 0, 0, 0, 0], "orientation_covariance": [0.0, 0, 0, 0, 0, 0, 0, 0, 0],
+        "sources": ["gps"], "reset_counter": 0, "valid": true, "invalid_reason": null,
+        "origin": {"lat": 47.397741065338046, "lon": 8.545616413970455, "alt": 488.6081333681941},
+        "protection": {"horizontal_m": 1.0, "vertical_m": 2.0, "horizontal_alert_m": 10.0, "vertical_alert_m": 15.0},
+    });
+    let h: serde_json::Value =
+        serde_json::from_slice(&health("a", 1, "ok", 1, true)).expect("health");
+    let s = summary_json(Some(pose), &h);
+    let p = &s["pose"];
+    assert_eq!(p["position"], json!([5.896, -0.719, 1.792]));
+    assert_eq!(p["orientation"][2], json!(0.3424));
+    assert_eq!(p["velocity"], json!([0.123, 0.0, -2.5]));
+    assert_eq!(
+        p["position_covariance"],
+        json!([1.612e-5, 0.0, 0.0, 0.0, 123500.0, 0.0, 0.0, 0.0, 1.0])
+    );
+    assert_eq!(p["origin"]["lat"], json!(47.39774107));
+    for gone in [
+        "velocity_covariance",
+        "orientation_covariance",
+        "protection",
+        "frame",
+    ] {
+        assert!(p.get(gone).is_none(), "{gone} in {p}");
+    }
+    // What the view reads of it is all there: it makes a row.
+    let mut f = fleet();
+    f.accept("skyfuse/a", SUMMARY, s.to_string().as_bytes(), 0)
+        .expect("summary");
+    f.refresh(0);
+    let v = f.view(0, false);
+    assert_eq!(row(&v, "skyfuse/a").valid, Some(true));
+    assert_eq!(row(&v, "skyfuse/a").frame, Some("geo"));
+}

@@ -86,7 +86,9 @@ impl Vehicle {
         let r = self.radius_m;
         let yaw = a + std::f64::consts::FRAC_PI_2;
         let valid = i % 29 != 28;
-        let sources = vec!["gps".to_string(), "imu".into(), "flow".into()];
+        let sources: Vec<String> = ["attitude", "flow", "gps", "imu", "rangefinder", "t265"]
+            .map(String::from)
+            .into();
         let m = PoseMessage {
             time_us,
             frame: "map",
@@ -120,10 +122,16 @@ impl Vehicle {
             "service": {"vehicle": self.name, "version": env!("CARGO_PKG_VERSION"),
                         "started_us": started_us, "dashboard": null},
             "vpe": {"endpoints": 1, "sending": valid, "sent": 0, "withheld": 0,
-                    "reason": (!valid).then_some("estimate invalid")},
+                    "reason": (!valid).then_some("estimate invalid: position uncertainty above the limit")},
             "zenoh": {"routers": 1, "peers": 0},
-            "sensors": [{"id": "gps", "health": gps}, {"id": "imu", "health": "ok"},
-                        {"id": "flow", "health": "ok"}],
+            // The default config's inputs, as a demo vehicle lists them (the disabled
+            // ones too): the summary then weighs what a real one does (~1.1 KB).
+            "sensors": [{"id": "gps", "health": gps}, {"id": "t265", "health": "ok"},
+                        {"id": "imu", "health": "ok"}, {"id": "flow", "health": "ok"},
+                        {"id": "attitude", "health": "ok"}, {"id": "rangefinder", "health": "ok"},
+                        {"id": "autopilot", "health": "disabled"}, {"id": "armed", "health": "disabled"},
+                        {"id": "landed", "health": "disabled"}, {"id": "baro", "health": "disabled"},
+                        {"id": "gps_raw", "health": "disabled"}, {"id": "flow_rad", "health": "disabled"}],
             "estimator": {"valid": valid},
         })
     }
