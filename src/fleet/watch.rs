@@ -96,12 +96,21 @@ impl FleetWatch {
     pub fn metrics_text(&self) -> String {
         let now = now_us();
         let f = self.refreshed(now);
-        let (counters, presence) = (f.counters(), f.presence_counts(now));
+        let (c, (live, stale, gone)) = (f.counters(), f.presence_counts(now));
         drop(f);
         crate::http::metrics::render_fleet(
-            counters,
-            presence,
-            self.cfg.max_vehicles,
+            crate::http::metrics::FleetNumbers {
+                live,
+                stale,
+                gone,
+                max_vehicles: self.cfg.max_vehicles,
+                messages: c.messages,
+                bytes: c.bytes,
+                rejected: c.rejected,
+                joined: c.joined,
+                forgotten: c.forgotten,
+                refused: c.refused,
+            },
             crate::http::metrics::ProcessStats::read(),
         )
     }

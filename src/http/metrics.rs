@@ -409,12 +409,31 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
 /// label (a thousand vehicles would be a thousand series in every family, and a vehicle
 /// that leaves would leave its series behind); per-vehicle state is in `/api/v1/fleet`.
 /// The one label is `presence`, with its three values always present.
-pub fn render_fleet(
-    counters: crate::fleet::FleetCounters,
-    (live, stale, gone): (usize, usize, usize),
-    max_vehicles: usize,
-    process: Option<ProcessStats>,
-) -> String {
+/// What `render_fleet` shows: plain numbers (this module does not reach into the fleet
+/// view, which serves it).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FleetNumbers {
+    pub live: usize,
+    pub stale: usize,
+    pub gone: usize,
+    pub max_vehicles: usize,
+    pub messages: u64,
+    pub bytes: u64,
+    pub rejected: u64,
+    pub joined: u64,
+    pub forgotten: u64,
+    pub refused: u64,
+}
+
+pub fn render_fleet(n: FleetNumbers, process: Option<ProcessStats>) -> String {
+    let FleetNumbers {
+        live,
+        stale,
+        gone,
+        max_vehicles,
+        ..
+    } = n;
+    let counters = n;
     let mut m = Metrics {
         registry: Registry::with_prefix("skyfuse_fleet"),
     };

@@ -487,8 +487,8 @@ pub async fn run(
                     let pose = inp.pose.borrow().clone().and_then(|p| {
                         serde_json::to_value(PoseMessage::of(&p, &cfg.ros2_frame_id)).ok()
                     });
-                    let summary = crate::fleet::summary_json(pose, &h);
-                    put(format!("{prefix}/{}", crate::fleet::SUMMARY), summary.to_string().into_bytes(), None).await;
+                    let summary = super::summary::summary_json(pose, &h);
+                    put(format!("{prefix}/{}", super::summary::SUMMARY), summary.to_string().into_bytes(), None).await;
                 }
             }
         }

@@ -14,7 +14,7 @@
 //! estimate, so a fleet page has states to sort and filter.
 
 use crate::estimator::Protection;
-use crate::fleet::{summary_json, ALIVE, EVENTS, HEALTH, POSE, SUMMARY};
+use crate::output::summary::{summary_json, ALIVE, EVENTS, HEALTH, POSE, SUMMARY};
 use crate::output::zenoh_out::{GeoPoint, PoseMessage};
 use std::future::Future;
 use std::time::{Duration, Instant};
