@@ -43,7 +43,8 @@ pub fn repo_root() -> PathBuf {
 }
 
 /// Whether the developer asked to skip the slow tests of `what` with
-/// `SKYFUSE_SKIP=containers,browser,peers` (the fast path in the README); prints why.
+/// `SKYFUSE_SKIP=containers,browser,peers,routers` (the fast path in the README); prints
+/// why.
 pub fn skip_requested(what: &str, test: &str) -> bool {
     let asked = std::env::var("SKYFUSE_SKIP").unwrap_or_default();
     let skip = asked
