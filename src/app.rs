@@ -430,6 +430,21 @@ pub async fn monitor(
             axum::routing::get(|| crate::http::assets::serve("app.css")),
         )
         .route("/healthz", axum::routing::get(|| async { "ok\n" }))
+        .route(
+            "/metrics",
+            axum::routing::get({
+                let fleet = fleet.clone();
+                move || async move {
+                    (
+                        [(
+                            axum::http::header::CONTENT_TYPE,
+                            crate::http::metrics::CONTENT_TYPE,
+                        )],
+                        fleet.metrics_text(),
+                    )
+                }
+            }),
+        )
         .merge(crate::fleet::watch::routes(fleet));
     serve_http(listeners.http, tls, app, shutdown).await?;
     fleet_task.abort();

@@ -114,6 +114,9 @@ pub const DEFAULT_FLEET_GONE_S: f64 = 10.0;
 pub const DEFAULT_FLEET_FORGET_S: f64 = 120.0;
 /// Track points kept per vehicle (one a second at most: 10 minutes).
 pub const DEFAULT_FLEET_TRACK_POINTS: usize = 600;
+/// Vehicles the fleet view keeps at most (more are refused and counted): what bounds the
+/// monitor's memory when anything on the network may publish under `watch`.
+pub const DEFAULT_FLEET_MAX_VEHICLES: usize = 5000;
 
 /// `[fleet]`: the fleet view (`skyfuse monitor`, and `/fleet` on every vehicle).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -128,6 +131,11 @@ pub struct FleetConfig {
     pub gone_after_s: f64,
     pub forget_after_s: f64,
     pub track_points: usize,
+    pub max_vehicles: usize,
+    /// Read each vehicle's once-a-second `<watch>/summary` only (true), or also its
+    /// full-rate `pose` and full `health` (false: for vehicles older than the summary,
+    /// at the cost of every pose of the fleet reaching this process).
+    pub summary_only: bool,
 }
 
 impl Default for FleetConfig {
@@ -138,6 +146,8 @@ impl Default for FleetConfig {
             gone_after_s: DEFAULT_FLEET_GONE_S,
             forget_after_s: DEFAULT_FLEET_FORGET_S,
             track_points: DEFAULT_FLEET_TRACK_POINTS,
+            max_vehicles: DEFAULT_FLEET_MAX_VEHICLES,
+            summary_only: true,
         }
     }
 }
@@ -949,6 +959,9 @@ impl Config {
                 "[fleet] watch {:?} is not a valid Zenoh key expression: {e}",
                 f.watch
             ));
+        }
+        if f.max_vehicles == 0 {
+            return Err("[fleet] max_vehicles must be at least 1".into());
         }
         if !(f.stale_after_s <= f.gone_after_s && f.gone_after_s <= f.forget_after_s) {
             return Err("[fleet] needs stale_after_s <= gone_after_s <= forget_after_s".into());

@@ -527,6 +527,8 @@ fn the_fleet_compose_shows_three_vehicles_across_two_routers_on_one_monitor() {
         services: &[
             "router-a",
             "router-b",
+            "router-gs",
+            "standins",
             "drone1",
             "drone1-sim",
             "drone2",
@@ -560,6 +562,32 @@ fn the_fleet_compose_shows_three_vehicles_across_two_routers_on_one_monitor() {
         started.elapsed().as_secs_f64()
     );
     assert_eq!(f["monitor"], true);
+    // The stand-ins (`skyfuse sim --fleet 20` on router-b) reach the monitor on router-gs
+    // too, each once, placed by its summary.
+    let standins = |f: &Value| -> Vec<String> {
+        f["vehicles"]
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .filter(|v| v["id"].as_str().is_some_and(|i| i.starts_with("standins/")))
+                    .filter(|v| v["presence"] == "live" && v["frame"] == "geo")
+                    .filter_map(|v| v["name"].as_str().map(String::from))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let f = wait_json(
+        monitor_port,
+        "/api/v1/fleet?tracks=false",
+        Duration::from_secs(30),
+        "the 20 stand-ins live and placed on the monitor",
+        &stack,
+        |f| standins(f).len() == 20,
+    );
+    let mut got = standins(&f);
+    got.sort();
+    let want: Vec<String> = (0..20).map(|i| format!("v{i:04}")).collect();
+    assert_eq!(got, want, "{f}");
     for (n, port) in names.iter().zip(drone_ports) {
         let r = fleet_row(&f, n).expect("row");
         assert_eq!(r["id"], format!("{n}/skyfuse/{n}"), "its namespace: {f}");
@@ -609,7 +637,10 @@ fn the_fleet_compose_shows_three_vehicles_across_two_routers_on_one_monitor() {
     // The page itself comes from the monitor.
     let (code, page) = http_get(monitor_port, "/fleet").expect("GET /fleet");
     assert_eq!(code, 200);
-    assert!(page.contains("fleet.js"));
+    assert!(page.contains("js/fleet-main.js"));
+    let (code, module) = http_get(monitor_port, "/js/fleet-main.js").expect("GET module");
+    assert_eq!(code, 200);
+    assert!(module.contains("import "), "an ES module: {module}");
     let health = podman.output(&["healthcheck", "run", &stack.container("monitor")]);
     assert!(health.status.success(), "the monitor's HEALTHCHECK failed");
 }

@@ -141,6 +141,21 @@ pub enum Command {
         /// List the scenarios and exit.
         #[arg(long)]
         list: bool,
+        /// Instead of one simulated flight: N light stand-in vehicles from this one
+        /// process (pose, health, summary, liveliness token on a real skyfuse's keys,
+        /// no estimator), for the fleet view at scale. Prints what it published as
+        /// one JSON line when it stops.
+        #[arg(long, value_name = "N", conflicts_with_all = ["out", "ulog", "dataflash", "monte_carlo"],
+              value_parser = clap::value_parser!(u32).range(1..=100_000))]
+        fleet: Option<u32>,
+        /// With `--fleet`: the first vehicle's number (names v<I>, v<I+1>, …), so fleets
+        /// from several processes do not collide.
+        #[arg(long, default_value_t = 0, value_name = "I", requires = "fleet")]
+        fleet_first: u32,
+        /// With `--fleet`: each stand-in's pose rate, Hz (a real skyfuse: `[output]
+        /// pose_rate_hz`, 50 by default).
+        #[arg(long, default_value_t = 10.0, value_name = "HZ", requires = "fleet", value_parser = parse_pose_hz)]
+        pose_hz: f64,
         /// Offline: fly this many randomised vehicles and flights (seeded by `--seed`)
         /// through the configuration and print the integrity table by scenario family;
         /// with `--out`, each run's figures as `runs.jsonl` and the table as
@@ -285,6 +300,15 @@ pub struct NetArgs {
     /// HTTP address for the dashboard and API, e.g. 0.0.0.0:8080.
     #[arg(long, value_name = "ADDR")]
     pub http: Option<String>,
+}
+
+/// `--pose-hz`: a stand-in's pose rate.
+fn parse_pose_hz(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(x) if (0.5..=200.0).contains(&x) => Ok(x),
+        Ok(_) => Err(format!("{s:?}: between 0.5 and 200")),
+        Err(e) => Err(format!("{s:?}: {e}")),
+    }
 }
 
 /// `--speedup`: a simulator's rate against real time.
@@ -582,6 +606,46 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             for (name, description) in scenario::NAMES {
                 println!("  {name:<16} {description}");
             }
+            Ok(())
+        }
+        Command::Sim {
+            config,
+            net,
+            home,
+            duration,
+            fleet: Some(n),
+            fleet_first,
+            pose_hz,
+            ..
+        } => {
+            let mut c = load(config.as_deref(), &net)?;
+            // As the single simulator: told where to connect, no listener of its own.
+            if !net.connect.is_empty() && net.listen.is_empty() {
+                c.zenoh.listen.clear();
+            }
+            let mut shutdown = Box::pin(app::shutdown_signal());
+            let Some(session) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
+                return Ok(());
+            };
+            let (lat, lon, alt) = home.unwrap_or((
+                crate::sim::sensors::HOME_LAT,
+                crate::sim::sensors::HOME_LON,
+                crate::sim::sensors::HOME_ALT,
+            ));
+            let sim = crate::sim::fleet::FleetSim {
+                vehicles: n as usize,
+                first: fleet_first as usize,
+                pose_hz,
+                home: (lat, lon, alt),
+                duration: duration.unwrap_or(f64::INFINITY),
+            };
+            let report = crate::sim::fleet::run(&session, &sim, shutdown).await;
+            let _ = session.close().await;
+            let report = report?;
+            println!(
+                "{}",
+                serde_json::to_string(&report).map_err(|e| e.to_string())?
+            );
             Ok(())
         }
         Command::Sim {

@@ -6,8 +6,19 @@
 //! reads a clock or the network. [`watch`] subscribes on Zenoh, feeds it and serves the
 //! view to `/api/v1/fleet` and `/ws/fleet`.
 //!
-//! Thinning: a pose payload is only stored as it arrives (30 Hz × the fleet); it is
-//! parsed when the view is refreshed (2 Hz), and the track keeps a point a second.
+//! Thinning: each vehicle publishes `<prefix>/summary` once a second (its pose and the
+//! parts of its health this view reads, in one small message), and the view reads that
+//! by default instead of the full-rate pose and the full health: a thousand vehicles
+//! cost a monitor a thousand small messages a second, whatever their pose rate. Zenoh's
+//! downsampling cannot do this thinning per vehicle (zenohd 1.10 keeps one timer per
+//! rule, so `**/skyfuse/*/pose` at 1 Hz lets one pose a second through for the whole
+//! fleet); see config/zenohd-fleet.json5. A pose payload (read only with
+//! `[fleet] summary_only = false`) is stored as it arrives and parsed when the view is
+//! refreshed (2 Hz); the track keeps a point a second.
+//!
+//! Bounded: at most `[fleet] max_vehicles` entries (more are refused and counted), ids,
+//! payloads, sensor lists and texts are capped, so outside data cannot grow the monitor
+//! beyond a fixed size per vehicle.
 
 pub mod watch;
 
@@ -15,20 +26,26 @@ use crate::config::FleetConfig;
 use crate::geo::LocalEnu;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
 /// Time on the host clock, µs.
 type Micros = i64;
 
-/// Keys under a vehicle's prefix that the fleet view reads.
-pub const POSE: &str = "pose";
-pub const HEALTH: &str = "health";
-pub const EVENTS: &str = "events";
-/// The liveliness token a vehicle holds while it runs.
-pub const ALIVE: &str = "alive";
+/// Keys under a vehicle's prefix that the fleet view reads, as the vehicle's output
+/// publishes them (the publisher owns the names and the summary's shape).
+pub use crate::output::summary::{summary_json, ALIVE, EVENTS, HEALTH, POSE, SUMMARY};
 
 /// A track point at most this often, µs.
 const TRACK_INTERVAL_US: Micros = 1_000_000;
+/// Larger payloads are refused unread: a real pose is under 1 KB, a health message a few
+/// KB; this bounds what one stored pose (or one parse) can cost.
+pub const MAX_PAYLOAD: usize = 64 * 1024;
+/// A vehicle id (its key prefix) longer than this is refused: ids are kept per vehicle
+/// and sent to every page.
+pub const MAX_ID_LEN: usize = 200;
+/// Sensors and sources kept per vehicle, and the length of each text kept.
+const MAX_LIST: usize = 32;
+const MAX_TEXT: usize = 300;
 
 /// How a vehicle is doing, as far as the fleet view can tell.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -75,6 +92,15 @@ struct HealthIn {
     zenoh: Option<ZenohIn>,
     #[serde(default)]
     sensors: Vec<SensorIn>,
+}
+
+/// `<prefix>/summary`: the pose (null before the first) and the health's verdict parts.
+#[derive(Debug, Clone, Deserialize)]
+struct SummaryIn {
+    #[serde(default)]
+    pose: Option<PoseIn>,
+    #[serde(flatten)]
+    health: HealthIn,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -132,8 +158,8 @@ struct Vehicle {
     last_heard_us: Micros,
     /// Since when its liveliness token is gone (None: held, or never seen).
     token_lost_us: Option<Micros>,
-    /// The newest pose payload, parsed at the next refresh.
-    pose_pending: Option<Vec<u8>>,
+    /// The newest pose, placed at the next refresh.
+    pose_pending: Option<PendingPose>,
     pose: Option<PoseIn>,
     /// Where `pose` is on the map: east/north and the frame (see `map_position`),
     /// computed once when the pose is read.
@@ -146,6 +172,14 @@ struct Vehicle {
     last_track_us: Option<Micros>,
     /// The frame the track is in (`geo`/`local` and the vehicle's origin).
     track_frame: Option<(&'static str, Option<GeoIn>)>,
+}
+
+/// A pose waiting for the next refresh: a full-rate payload is parsed only then (the
+/// newest of many), a summary's was parsed with the summary.
+#[derive(Debug, Clone)]
+enum PendingPose {
+    Raw(Vec<u8>),
+    Parsed(Box<PoseIn>),
 }
 
 /// The last event a vehicle published.
@@ -217,15 +251,22 @@ pub struct FleetView {
 #[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
 pub struct FleetCounters {
     pub messages: u64,
+    /// Payload bytes received on the fleet keys.
+    pub bytes: u64,
     pub rejected: u64,
     pub joined: u64,
     pub forgotten: u64,
+    /// Vehicles not taken in because `max_vehicles` were known (or their id was too long).
+    pub refused: u64,
 }
 
 /// The fleet: pure state, fed payloads with their arrival times.
 pub struct Fleet {
     cfg: FleetConfig,
     vehicles: BTreeMap<String, Vehicle>,
+    /// Slots held by known vehicles (a join takes the lowest free one without a scan of
+    /// every vehicle).
+    slots: BTreeSet<usize>,
     reference: Option<(GeoIn, LocalEnu)>,
     counters: FleetCounters,
 }
@@ -235,6 +276,7 @@ impl Fleet {
         Self {
             cfg,
             vehicles: BTreeMap::new(),
+            slots: BTreeSet::new(),
             reference: None,
             counters: FleetCounters::default(),
         }
@@ -246,13 +288,23 @@ impl Fleet {
         (!id.is_empty()).then_some((id, leaf))
     }
 
-    fn entry(&mut self, id: &str, now: Micros) -> &mut Vehicle {
+    /// The vehicle's entry, created on first sight; None when it cannot be taken in
+    /// (`max_vehicles` known, or an id too long), counted in `refused`.
+    fn entry(&mut self, id: &str, now: Micros) -> Option<&mut Vehicle> {
         if !self.vehicles.contains_key(id) {
+            if self.vehicles.len() >= self.cfg.max_vehicles || id.len() > MAX_ID_LEN {
+                self.counters.refused += 1;
+                return None;
+            }
             // The lowest slot no known vehicle holds: a vehicle that left and was
             // forgotten frees its colour.
-            let slot = (0..)
-                .find(|s| self.vehicles.values().all(|v| v.slot != *s))
-                .unwrap_or(0);
+            let slot = self
+                .slots
+                .iter()
+                .enumerate()
+                .find(|(i, s)| i != *s)
+                .map_or(self.slots.len(), |(i, _)| i);
+            self.slots.insert(slot);
             self.counters.joined += 1;
             self.vehicles.insert(
                 id.to_string(),
@@ -273,18 +325,43 @@ impl Fleet {
                 },
             );
         }
-        let v = self
-            .vehicles
-            .get_mut(id)
-            .unwrap_or_else(|| unreachable!("inserted above"));
+        let v = self.vehicles.get_mut(id)?;
         v.last_heard_us = v.last_heard_us.max(now);
-        v
+        Some(v)
+    }
+
+    /// How many vehicles are known (live, stale or gone and not yet forgotten).
+    pub fn len(&self) -> usize {
+        self.vehicles.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.vehicles.is_empty()
+    }
+
+    /// Vehicles by presence now: (live, stale, gone).
+    pub fn presence_counts(&self, now: Micros) -> (usize, usize, usize) {
+        let mut n = (0, 0, 0);
+        for v in self.vehicles.values() {
+            match self.presence(v, now) {
+                Presence::Live => n.0 += 1,
+                Presence::Stale => n.1 += 1,
+                Presence::Gone => n.2 += 1,
+            }
+        }
+        n
+    }
+
+    pub fn counters(&self) -> FleetCounters {
+        self.counters
     }
 
     /// A liveliness token appeared (a vehicle started, or its link came back; which of
     /// the two its health's start time tells).
     pub fn token_appeared(&mut self, id: &str, now: Micros) {
-        self.entry(id, now).token_lost_us = None;
+        if let Some(v) = self.entry(id, now) {
+            v.token_lost_us = None;
+        }
     }
 
     /// A liveliness token went away (the vehicle stopped, or its link did).
@@ -294,8 +371,8 @@ impl Fleet {
         }
     }
 
-    /// A payload on `<id>/<leaf>`. The pose is only stored (parsed at the next
-    /// [`Fleet::refresh`]); health and events are read at once (1 Hz, rare).
+    /// A payload on `<id>/<leaf>`. A full-rate pose is only stored (parsed at the next
+    /// [`Fleet::refresh`]); summaries, health and events are read at once (1 Hz, rare).
     pub fn accept(
         &mut self,
         id: &str,
@@ -304,44 +381,64 @@ impl Fleet {
         now: Micros,
     ) -> Result<(), FleetInputError> {
         self.counters.messages += 1;
+        self.counters.bytes += payload.len() as u64;
         let err = |message: String| FleetInputError {
             key: format!("{id}/{leaf}"),
             message,
         };
-        let result = match leaf {
-            POSE => {
-                self.entry(id, now).pose_pending = Some(payload.to_vec());
-                Ok(())
-            }
-            HEALTH => match serde_json::from_slice::<HealthIn>(payload) {
-                Ok(h) => {
-                    let v = self.entry(id, now);
-                    if let Some(s) = &h.service {
-                        // A new start time is a restart (a token that went and came
-                        // back may only have been the link).
-                        if v.started_us.is_some_and(|t| t != s.started_us) {
-                            v.restarts += 1;
-                        }
-                        v.started_us = Some(s.started_us);
+        let result = if payload.len() > MAX_PAYLOAD {
+            Err(err(format!(
+                "{} bytes, more than the {MAX_PAYLOAD} a fleet message may have",
+                payload.len()
+            )))
+        } else {
+            match leaf {
+                POSE => {
+                    if let Some(v) = self.entry(id, now) {
+                        v.pose_pending = Some(PendingPose::Raw(payload.to_vec()));
                     }
-                    v.health = Some(h);
                     Ok(())
                 }
-                Err(e) => Err(err(format!("not a skyfuse health message: {e}"))),
-            },
-            EVENTS => match serde_json::from_slice::<EventIn>(payload) {
-                Ok(e) => {
-                    self.entry(id, now).last_event = Some(EventView {
-                        time_us: e.time_us,
-                        kind: e.kind,
-                        source: e.source,
-                        message: e.message,
-                    });
-                    Ok(())
-                }
-                Err(e) => Err(err(format!("not a skyfuse event: {e}"))),
-            },
-            other => Err(err(format!("not a fleet key ({other})"))),
+                SUMMARY => match serde_json::from_slice::<SummaryIn>(payload) {
+                    Ok(s) => match s.pose.map(check_pose).transpose() {
+                        Ok(pose) => {
+                            if let Some(v) = self.entry(id, now) {
+                                apply_health(v, s.health);
+                                if let Some(p) = pose {
+                                    v.pose_pending = Some(PendingPose::Parsed(Box::new(p)));
+                                }
+                            }
+                            Ok(())
+                        }
+                        Err(e) => Err(err(e)),
+                    },
+                    Err(e) => Err(err(format!("not a skyfuse summary: {e}"))),
+                },
+                HEALTH => match serde_json::from_slice::<HealthIn>(payload) {
+                    Ok(h) => {
+                        if let Some(v) = self.entry(id, now) {
+                            apply_health(v, h);
+                        }
+                        Ok(())
+                    }
+                    Err(e) => Err(err(format!("not a skyfuse health message: {e}"))),
+                },
+                EVENTS => match serde_json::from_slice::<EventIn>(payload) {
+                    Ok(e) => {
+                        if let Some(v) = self.entry(id, now) {
+                            v.last_event = Some(EventView {
+                                time_us: e.time_us,
+                                kind: e.kind.map(|k| truncated(k, MAX_TEXT)),
+                                source: e.source.map(|k| truncated(k, MAX_TEXT)),
+                                message: truncated(e.message, MAX_TEXT),
+                            });
+                        }
+                        Ok(())
+                    }
+                    Err(e) => Err(err(format!("not a skyfuse event: {e}"))),
+                },
+                other => Err(err(format!("not a fleet key ({other})"))),
+            }
         };
         if result.is_err() {
             self.counters.rejected += 1;
@@ -356,24 +453,33 @@ impl Fleet {
         let forget_us = secs_us(self.cfg.forget_after_s);
         let gone_us = secs_us(self.cfg.gone_after_s);
         let before = self.vehicles.len();
+        let slots = &mut self.slots;
         self.vehicles.retain(|_, v| {
             let gone_since = match v.token_lost_us {
                 Some(t) => t.min(v.last_heard_us + gone_us),
                 None => v.last_heard_us + gone_us,
             };
-            now - gone_since < forget_us
+            let keep = now - gone_since < forget_us;
+            if !keep {
+                slots.remove(&v.slot);
+            }
+            keep
         });
         self.counters.forgotten += (before - self.vehicles.len()) as u64;
         let ids: Vec<String> = self.vehicles.keys().cloned().collect();
         for id in ids {
-            let Some(raw) = self
+            let Some(pending) = self
                 .vehicles
                 .get_mut(&id)
                 .and_then(|v| v.pose_pending.take())
             else {
                 continue;
             };
-            match parse_pose(&raw) {
+            let parsed = match pending {
+                PendingPose::Raw(raw) => parse_pose(&raw),
+                PendingPose::Parsed(p) => Ok(*p),
+            };
+            match parsed {
                 Ok(p) => {
                     if self.reference.is_none() {
                         if let Some(o) = p.origin {
@@ -539,9 +645,53 @@ fn heading_deg(q: [f64; 4]) -> f64 {
     (90.0 - yaw_enu.to_degrees()).rem_euclid(360.0)
 }
 
+/// A health message's parts, kept with their lists and texts capped; a new start time
+/// is a restart (a token that went and came back may only have been the link).
+fn apply_health(v: &mut Vehicle, mut h: HealthIn) {
+    if let Some(s) = &mut h.service {
+        if v.started_us.is_some_and(|t| t != s.started_us) {
+            v.restarts += 1;
+        }
+        v.started_us = Some(s.started_us);
+        s.vehicle = truncated(std::mem::take(&mut s.vehicle), MAX_TEXT);
+        s.version = truncated(std::mem::take(&mut s.version), MAX_TEXT);
+        s.dashboard = s.dashboard.take().map(|d| truncated(d, MAX_TEXT));
+    }
+    if let Some(vpe) = &mut h.vpe {
+        vpe.reason = vpe.reason.take().map(|r| truncated(r, MAX_TEXT));
+    }
+    h.sensors.truncate(MAX_LIST);
+    for s in &mut h.sensors {
+        s.id = truncated(std::mem::take(&mut s.id), MAX_TEXT);
+    }
+    v.health = Some(h);
+}
+
+/// `s` cut to at most `max` bytes, on a character boundary.
+fn truncated(mut s: String, max: usize) -> String {
+    if s.len() > max {
+        let mut end = max;
+        while !s.is_char_boundary(end) {
+            end -= 1;
+        }
+        s.truncate(end);
+    }
+    s
+}
+
 /// Reads a pose and refuses one with non-finite numbers (nothing invalid is drawn).
 fn parse_pose(raw: &[u8]) -> Result<PoseIn, String> {
     let p: PoseIn = serde_json::from_slice(raw).map_err(|e| format!("not a skyfuse pose: {e}"))?;
+    check_pose(p)
+}
+
+/// A pose with every number finite, its texts and lists capped.
+fn check_pose(mut p: PoseIn) -> Result<PoseIn, String> {
+    p.sources.truncate(MAX_LIST);
+    for s in &mut p.sources {
+        *s = truncated(std::mem::take(s), MAX_TEXT);
+    }
+    p.invalid_reason = p.invalid_reason.map(|r| truncated(r, MAX_TEXT));
     let finite = p
         .position
         .iter()

@@ -312,3 +312,162 @@ fn a_vehicle_that_gains_a_gnss_origin_starts_a_new_track() {
     );
     assert!(track[0][1] > 90.0, "{track:?}");
 }
+
+fn summary(vehicle: &str, started_us: i64, gps: &str, x: f64) -> Vec<u8> {
+    let p: serde_json::Value =
+        serde_json::from_slice(&pose(x, 0.0, 90.0, Some((47.0, 8.0)))).expect("pose");
+    let h: serde_json::Value =
+        serde_json::from_slice(&health(vehicle, started_us, gps, 1, true)).expect("health");
+    summary_json(Some(p), &h).to_string().into_bytes()
+}
+
+#[test]
+fn a_summary_alone_gives_the_whole_row() {
+    let mut f = fleet();
+    let s = summary("a", 7, "degraded", 3.0);
+    f.accept("ns/skyfuse/a", SUMMARY, &s, 0).expect("summary");
+    f.refresh(0);
+    let v = f.view(0, true);
+    let r = row(&v, "ns/skyfuse/a");
+    assert_eq!(r.name, "a");
+    assert_eq!(r.valid, Some(true));
+    assert_eq!(r.frame, Some("geo"));
+    assert_eq!(r.worst_health.as_deref(), Some("degraded"));
+    assert_eq!(r.unhealthy, vec!["gps: degraded".to_string()]);
+    assert_eq!(r.vpe, Some("sending"));
+    assert_eq!(r.track.as_ref().map(Vec::len), Some(1));
+    // A new start time in a summary is a restart, as in a health message.
+    f.accept("ns/skyfuse/a", SUMMARY, &summary("a", 8, "ok", 4.0), S)
+        .expect("summary");
+    f.refresh(S);
+    assert_eq!(row(&f.view(S, false), "ns/skyfuse/a").restarts, 1);
+    // A summary before the first pose (pose null) still names the vehicle.
+    let h: serde_json::Value =
+        serde_json::from_slice(&health("b", 1, "ok", 0, false)).expect("health");
+    let early = summary_json(None, &h).to_string().into_bytes();
+    f.accept("ns/skyfuse/b", SUMMARY, &early, S).expect("early");
+    let v = f.view(S, false);
+    assert_eq!(row(&v, "ns/skyfuse/b").valid, None);
+    assert_eq!(row(&v, "ns/skyfuse/b").vpe, Some("off"));
+}
+
+#[test]
+fn a_summary_with_a_non_finite_pose_is_refused_whole() {
+    let mut f = fleet();
+    let bad = summary("a", 1, "ok", 1.0)
+        .iter()
+        .map(|&b| b as char)
+        .collect::<String>()
+        .replacen("\"position\":[1.0", "\"position\":[1e999", 1);
+    assert!(bad.contains("1e999"), "{bad}");
+    assert!(f.accept("skyfuse/a", SUMMARY, bad.as_bytes(), 0).is_err());
+    assert_eq!(f.counters().rejected, 1);
+    assert!(f.is_empty(), "nothing of it is shown");
+}
+
+#[test]
+fn memory_is_bounded_per_vehicle_and_in_vehicles() {
+    let mut f = Fleet::new(FleetConfig {
+        max_vehicles: 3,
+        ..FleetConfig::default()
+    });
+    for i in 0..5 {
+        let _ = f.accept(
+            &format!("skyfuse/v{i}"),
+            SUMMARY,
+            &summary("v", 1, "ok", 0.0),
+            0,
+        );
+    }
+    assert_eq!(f.len(), 3);
+    assert_eq!(f.counters().refused, 2);
+    // An id longer than the cap is refused, a payload over the cap is not read.
+    let long = format!("skyfuse/{}", "x".repeat(MAX_ID_LEN));
+    let mut g = fleet();
+    g.accept(&long, SUMMARY, &summary("v", 1, "ok", 0.0), 0)
+        .expect("read, not kept");
+    assert!(g.is_empty());
+    assert_eq!(g.counters().refused, 1);
+    let huge = vec![b' '; MAX_PAYLOAD + 1];
+    assert!(g.accept("skyfuse/a", SUMMARY, &huge, 0).is_err());
+    assert!(g.is_empty());
+    // Lists and texts are capped: a health with 1000 sensors and a 10 KB name.
+    let sensors: Vec<serde_json::Value> = (0..1000)
+        .map(|i| json!({"id": format!("s{i}"), "health": "failed"}))
+        .collect();
+    let h = json!({"service": {"vehicle": "n".repeat(10_000), "version": "1", "started_us": 1,
+                               "dashboard": null},
+                   "sensors": sensors});
+    g.accept("skyfuse/a", HEALTH, h.to_string().as_bytes(), 0)
+        .expect("health");
+    let v = g.view(0, false);
+    let r = row(&v, "skyfuse/a");
+    assert!(r.name.len() <= 300, "{}", r.name.len());
+    assert!(r.unhealthy.len() <= 32, "{}", r.unhealthy.len());
+}
+
+#[test]
+fn slots_are_reused_lowest_first_after_a_vehicle_is_forgotten() {
+    let mut f = fleet();
+    for (i, id) in ["skyfuse/a", "skyfuse/b", "skyfuse/c"].iter().enumerate() {
+        f.token_appeared(id, i as i64);
+    }
+    f.token_lost("skyfuse/a", 0);
+    f.token_lost("skyfuse/b", 0);
+    // Forgotten after forget_after_s; c stays (it was heard later and keeps its token).
+    let later = 125 * S;
+    f.token_appeared("skyfuse/c", later);
+    f.refresh(later);
+    assert_eq!(f.len(), 1);
+    f.token_appeared("skyfuse/d", later);
+    f.token_appeared("skyfuse/e", later);
+    f.token_appeared("skyfuse/f", later);
+    let v = f.view(later, false);
+    assert_eq!(row(&v, "skyfuse/c").slot, 2);
+    assert_eq!(row(&v, "skyfuse/d").slot, 0);
+    assert_eq!(row(&v, "skyfuse/e").slot, 1);
+    assert_eq!(row(&v, "skyfuse/f").slot, 3);
+}
+
+#[test]
+fn the_summary_rounds_what_a_map_shows_and_leaves_out_what_the_view_does_not_read() {
+    let pose = json!({
+        "time_us": 7, "frame": "map",
+        "position": [5.895998034390311, -0.7185101202318966, 1.7917912186656828],
+        "orientation": [-0.010617414527257387, -0.011077593999817224, 0.34240022377629004, 0.9394288925607333],
+        "velocity": [0.123456789, 0.0, -2.5],
+        "position_covariance": [0.000016123456, 0.0, 0.0, 0.0, 123456.789, 0.0, 0.0, 0.0, 1.0],
+        "velocity_covariance": [0.0, 0, 0, 0, 0, 0, 0, 0, 0], "orientation_covariance": [0.0, 0, 0, 0, 0, 0, 0, 0, 0],
+        "sources": ["gps"], "reset_counter": 0, "valid": true, "invalid_reason": null,
+        "origin": {"lat": 47.397741065338046, "lon": 8.545616413970455, "alt": 488.6081333681941},
+        "protection": {"horizontal_m": 1.0, "vertical_m": 2.0, "horizontal_alert_m": 10.0, "vertical_alert_m": 15.0},
+    });
+    let h: serde_json::Value =
+        serde_json::from_slice(&health("a", 1, "ok", 1, true)).expect("health");
+    let s = summary_json(Some(pose), &h);
+    let p = &s["pose"];
+    assert_eq!(p["position"], json!([5.896, -0.719, 1.792]));
+    assert_eq!(p["orientation"][2], json!(0.3424));
+    assert_eq!(p["velocity"], json!([0.123, 0.0, -2.5]));
+    assert_eq!(
+        p["position_covariance"],
+        json!([1.612e-5, 0.0, 0.0, 0.0, 123500.0, 0.0, 0.0, 0.0, 1.0])
+    );
+    assert_eq!(p["origin"]["lat"], json!(47.39774107));
+    for gone in [
+        "velocity_covariance",
+        "orientation_covariance",
+        "protection",
+        "frame",
+    ] {
+        assert!(p.get(gone).is_none(), "{gone} in {p}");
+    }
+    // What the view reads of it is all there: it makes a row.
+    let mut f = fleet();
+    f.accept("skyfuse/a", SUMMARY, s.to_string().as_bytes(), 0)
+        .expect("summary");
+    f.refresh(0);
+    let v = f.view(0, false);
+    assert_eq!(row(&v, "skyfuse/a").valid, Some(true));
+    assert_eq!(row(&v, "skyfuse/a").frame, Some("geo"));
+}

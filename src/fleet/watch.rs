@@ -9,7 +9,7 @@
 //! Each websocket client holds only the newest frame (a watch channel): a slow browser
 //! skips frames and stalls nothing.
 
-use super::{Fleet, FleetView, ALIVE, EVENTS, HEALTH, POSE};
+use super::{Fleet, FleetView, ALIVE, EVENTS, HEALTH, POSE, SUMMARY};
 use crate::clock::now_us;
 use crate::config::FleetConfig;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
@@ -73,9 +73,15 @@ impl FleetWatch {
 
     /// The view now, with the tracks.
     pub fn view(&self) -> FleetView {
+        self.view_tracks(true)
+    }
+
+    /// The view now, with or without the tracks (a thousand vehicles' full tracks are
+    /// 600 000 points: a poller that wants only states asks without).
+    pub fn view_tracks(&self, with_tracks: bool) -> FleetView {
         let now = now_us();
         let f = self.refreshed(now);
-        self.view_of(&f, now, true)
+        self.view_of(&f, now, with_tracks)
     }
 
     /// The fleet, locked, its pending poses read (unreadable ones logged, limited).
@@ -84,6 +90,29 @@ impl FleetWatch {
         let errors = f.refresh(now);
         warn_limited(&self.last_warn_us, errors.iter().map(|e| e.to_string()));
         f
+    }
+
+    /// `/metrics` of `skyfuse monitor`: the fleet in aggregate (no per-vehicle series).
+    pub fn metrics_text(&self) -> String {
+        let now = now_us();
+        let f = self.refreshed(now);
+        let (c, (live, stale, gone)) = (f.counters(), f.presence_counts(now));
+        drop(f);
+        crate::http::metrics::render_fleet(
+            crate::http::metrics::FleetNumbers {
+                live,
+                stale,
+                gone,
+                max_vehicles: self.cfg.max_vehicles,
+                messages: c.messages,
+                bytes: c.bytes,
+                rejected: c.rejected,
+                joined: c.joined,
+                forgotten: c.forgotten,
+                refused: c.refused,
+            },
+            crate::http::metrics::ProcessStats::read(),
+        )
     }
 
     fn view_of(&self, f: &Fleet, now: i64, with_tracks: bool) -> FleetView {
@@ -126,7 +155,15 @@ impl FleetWatch {
     async fn subscribe(&self) {
         let mut subs = self.subscribers.lock().await;
         let watch = self.cfg.watch.trim_end_matches('/');
-        for leaf in [POSE, HEALTH, EVENTS] {
+        // The summary carries what the view shows of pose and health once a second; the
+        // full-rate keys only when asked for (each subscription pulls every matching
+        // sample of the fleet across the network to this process).
+        let leaves: &[&str] = if self.cfg.summary_only {
+            &[SUMMARY, EVENTS]
+        } else {
+            &[SUMMARY, POSE, HEALTH, EVENTS]
+        };
+        for &leaf in leaves {
             let key = format!("{watch}/{leaf}");
             let fleet = self.fleet.clone();
             let last_warn = self.last_warn_us.clone();
@@ -198,19 +235,46 @@ fn warn_limited(last_warn_us: &AtomicI64, messages: impl Iterator<Item = String>
     }
 }
 
-/// `/fleet`, `/fleet.js`, `/api/v1/fleet`, `/ws/fleet`.
+/// `/fleet`, its modules under `/js/`, `/api/v1/fleet`, `/ws/fleet`. Merged into both
+/// the vehicle's dashboard and `skyfuse monitor`, so `/js/` is routed here, once.
 pub fn routes(watch: Arc<FleetWatch>) -> Router {
     Router::new()
         .route("/fleet", get(|| crate::http::assets::serve("fleet.html")))
-        .route("/fleet.js", get(|| crate::http::assets::serve("fleet.js")))
+        .route(
+            "/js/{file}",
+            get(
+                |axum::extract::Path(file): axum::extract::Path<String>| async move {
+                    crate::http::assets::serve_module(&file)
+                },
+            ),
+        )
         .route("/api/v1/fleet", get(fleet_json))
         .route("/ws/fleet", get(ws))
         .with_state(watch)
 }
 
-async fn fleet_json(State(w): State<Arc<FleetWatch>>) -> Response {
+/// `?tracks=false` leaves the tracks out.
+#[derive(Debug, serde::Deserialize)]
+struct FleetQuery {
+    #[serde(default = "yes")]
+    tracks: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+async fn fleet_json(
+    State(w): State<Arc<FleetWatch>>,
+    axum::extract::Query(query): axum::extract::Query<FleetQuery>,
+) -> Response {
     w.look();
-    ([(header::CACHE_CONTROL, "no-store")], Json(w.view())).into_response()
+    let tracks = query.tracks;
+    (
+        [(header::CACHE_CONTROL, "no-store")],
+        Json(w.view_tracks(tracks)),
+    )
+        .into_response()
 }
 
 async fn ws(State(w): State<Arc<FleetWatch>>, up: WebSocketUpgrade) -> Response {

@@ -405,6 +405,109 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
     }
 }
 
+/// `skyfuse monitor`'s `/metrics`: the fleet in aggregate. No family has a per-vehicle
+/// label (a thousand vehicles would be a thousand series in every family, and a vehicle
+/// that leaves would leave its series behind); per-vehicle state is in `/api/v1/fleet`.
+/// The one label is `presence`, with its three values always present.
+/// What `render_fleet` shows: plain numbers (this module does not reach into the fleet
+/// view, which serves it).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FleetNumbers {
+    pub live: usize,
+    pub stale: usize,
+    pub gone: usize,
+    pub max_vehicles: usize,
+    pub messages: u64,
+    pub bytes: u64,
+    pub rejected: u64,
+    pub joined: u64,
+    pub forgotten: u64,
+    pub refused: u64,
+}
+
+pub fn render_fleet(n: FleetNumbers, process: Option<ProcessStats>) -> String {
+    let FleetNumbers {
+        live,
+        stale,
+        gone,
+        max_vehicles,
+        ..
+    } = n;
+    let counters = n;
+    let mut m = Metrics {
+        registry: Registry::with_prefix("skyfuse_fleet"),
+    };
+    let vehicles = m.gauges(
+        "vehicles",
+        "Vehicles known to the fleet view, by presence (live, stale, gone)",
+    );
+    for (p, n) in [("live", live), ("stale", stale), ("gone", gone)] {
+        vehicles
+            .get_or_create(&vec![("presence", p.to_string())])
+            .set(n as f64);
+    }
+    m.gauge(
+        "vehicles_max",
+        "Vehicles the view keeps at most ([fleet] max_vehicles)",
+        max_vehicles as f64,
+    );
+    m.counter(
+        "messages",
+        "Messages received on the fleet keys",
+        counters.messages,
+    );
+    m.counter(
+        "received_bytes",
+        "Payload bytes received on the fleet keys",
+        counters.bytes,
+    );
+    m.counter(
+        "rejected",
+        "Fleet messages that could not be read",
+        counters.rejected,
+    );
+    m.counter("joined", "Vehicles that joined the view", counters.joined);
+    m.counter(
+        "forgotten",
+        "Vehicles dropped after forget_after_s gone",
+        counters.forgotten,
+    );
+    m.counter(
+        "refused",
+        "Vehicles not taken in (max_vehicles known, or an id too long)",
+        counters.refused,
+    );
+    let mut text = String::new();
+    if let Some(p) = process {
+        let mut reg = Registry::default();
+        let cpu: Counter<f64, AtomicU64> = Counter::default();
+        cpu.inc_by(p.cpu_seconds);
+        reg.register_with_unit(
+            "process_cpu",
+            "Total user and system CPU time",
+            Unit::Seconds,
+            cpu,
+        );
+        let rss: Gauge<f64, AtomicU64> = Gauge::default();
+        rss.set(p.resident_bytes);
+        reg.register_with_unit(
+            "process_resident_memory",
+            "Resident memory size",
+            Unit::Bytes,
+            rss,
+        );
+        let _ = encode_body(&mut text, &reg);
+    }
+    let mut main = String::new();
+    if encode(&mut main, &m.registry).is_err() {
+        return "# EOF\n".into();
+    }
+    match main.strip_suffix("# EOF\n") {
+        Some(body) => format!("{body}{text}# EOF\n"),
+        None => main,
+    }
+}
+
 /// A registry's families without the closing `# EOF`.
 fn encode_body(out: &mut String, reg: &Registry) -> std::fmt::Result {
     let mut s = String::new();

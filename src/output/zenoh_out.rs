@@ -477,8 +477,18 @@ pub async fn run(
                 Err(broadcast::error::RecvError::Closed) => break,
             },
             _ = health.tick() => {
-                if cfg.json && put(format!("{prefix}/health"), (inp.health)().to_string().into_bytes(), None).await {
-                    stats.health.fetch_add(1, Relaxed);
+                if cfg.json {
+                    let h = (inp.health)();
+                    if put(format!("{prefix}/health"), h.to_string().into_bytes(), None).await {
+                        stats.health.fetch_add(1, Relaxed);
+                    }
+                    // The fleet view's once-a-second message: the newest pose with the
+                    // health's verdict (a monitor of many vehicles reads only this).
+                    let pose = inp.pose.borrow().clone().and_then(|p| {
+                        serde_json::to_value(PoseMessage::of(&p, &cfg.ros2_frame_id)).ok()
+                    });
+                    let summary = super::summary::summary_json(pose, &h);
+                    put(format!("{prefix}/{}", super::summary::SUMMARY), summary.to_string().into_bytes(), None).await;
                 }
             }
         }

@@ -3,4 +3,5 @@
 
 pub use skyfuse_core::sim::*;
 
+pub mod fleet;
 pub mod publish;

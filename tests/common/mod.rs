@@ -43,7 +43,8 @@ pub fn repo_root() -> PathBuf {
 }
 
 /// Whether the developer asked to skip the slow tests of `what` with
-/// `SKYFUSE_SKIP=containers,browser,peers` (the fast path in the README); prints why.
+/// `SKYFUSE_SKIP=containers,browser,peers,routers` (the fast path in the README); prints
+/// why.
 pub fn skip_requested(what: &str, test: &str) -> bool {
     let asked = std::env::var("SKYFUSE_SKIP").unwrap_or_default();
     let skip = asked
@@ -370,4 +371,172 @@ pub fn sensor<'a>(status: &'a serde_json::Value, id: &str) -> &'a serde_json::Va
         .as_array()
         .and_then(|a| a.iter().find(|s| s["id"] == id))
         .unwrap_or_else(|| panic!("no sensor {id} in status: {status}"))
+}
+
+/// The zenohd binary for router meshes on the host: $SKYFUSE_ZENOHD (tests/run sets it
+/// to the one tests/containers/prepare builds), else that build's place in the cache,
+/// else `zenohd` on the PATH.
+pub fn zenohd() -> PathBuf {
+    if let Some(p) = std::env::var_os("SKYFUSE_ZENOHD") {
+        return PathBuf::from(p);
+    }
+    let cache = std::env::var_os("SKYFUSE_CONTAINER_CACHE")
+        .map(PathBuf::from)
+        .or_else(|| {
+            std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/skyfuse-containers"))
+        });
+    if let Some(found) = cache
+        .and_then(|c| std::fs::read_dir(c).ok())
+        .into_iter()
+        .flatten()
+        .filter_map(Result::ok)
+        .map(|e| e.path().join("bin/zenohd"))
+        .find(|p| p.is_file())
+    {
+        return found;
+    }
+    PathBuf::from("zenohd")
+}
+
+/// A zenohd router on loopback, killed on drop; `restart` stops it and starts it again
+/// on the same port (a router reboot in the mesh).
+pub struct Router {
+    child: Option<Child>,
+    pub port: u16,
+    args: Vec<String>,
+    pub log: PathBuf,
+}
+
+impl Router {
+    /// `zenohd -l tcp/127.0.0.1:<free port>` plus `args` (`-e` links, `-c` config).
+    pub fn start(args: &[&str]) -> Router {
+        let port = free_port();
+        let log = std::env::temp_dir().join(format!("skyfuse-zenohd-{port}.log"));
+        let mut r = Router {
+            child: None,
+            port,
+            args: args.iter().map(|s| s.to_string()).collect(),
+            log,
+        };
+        r.spawn();
+        r
+    }
+
+    fn spawn(&mut self) {
+        let logf = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&self.log)
+            .expect("router log");
+        let bin = zenohd();
+        let child = Command::new(&bin)
+            .args(["-l", &self.endpoint(), "--no-multicast-scouting"])
+            .args(&self.args)
+            .env("RUST_LOG", "warn")
+            .stdin(Stdio::null())
+            .stdout(logf.try_clone().expect("log"))
+            .stderr(logf)
+            .spawn()
+            .unwrap_or_else(|e| {
+                panic!(
+                    "cannot run zenohd ({}): {e}; tests/containers/prepare builds it, or set SKYFUSE_ZENOHD",
+                    bin.display()
+                )
+            });
+        self.child = Some(child);
+        // Listening once the port answers.
+        let start = Instant::now();
+        while TcpStream::connect(("127.0.0.1", self.port)).is_err() {
+            assert!(
+                start.elapsed() < Duration::from_secs(20),
+                "zenohd not listening on {} after 20 s:\n{}",
+                self.port,
+                std::fs::read_to_string(&self.log).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    pub fn endpoint(&self) -> String {
+        format!("tcp/127.0.0.1:{}", self.port)
+    }
+
+    pub fn stop(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+
+    pub fn restart(&mut self) {
+        self.stop();
+        self.spawn();
+    }
+}
+
+impl Drop for Router {
+    fn drop(&mut self) {
+        self.stop();
+        remove_unless_failing(&self.log);
+    }
+}
+
+/// Bytes the process `pid` has received on its established TCP connections to local
+/// port `peer_port`, from the kernel's tcp_info (`ss -ti`: bytes_received): what crossed
+/// the wire into it, whatever the process itself counts.
+pub fn tcp_bytes_received(pid: u32, peer_port: u16) -> u64 {
+    let out = Command::new("ss")
+        .args([
+            "-tinpH",
+            "state",
+            "established",
+            &format!("( dport = :{peer_port} )"),
+        ])
+        .output()
+        .expect("ss (iproute2)");
+    let text = String::from_utf8_lossy(&out.stdout);
+    let owner = format!("pid={pid},");
+    let mut total = 0;
+    let mut mine = false;
+    for line in text.lines() {
+        if !line.starts_with(char::is_whitespace) {
+            mine = line.contains(&owner);
+            continue;
+        }
+        if mine {
+            total += line
+                .split_whitespace()
+                .find_map(|w| w.strip_prefix("bytes_received:"))
+                .and_then(|n| n.parse::<u64>().ok())
+                .unwrap_or(0);
+        }
+    }
+    total
+}
+
+/// CPU seconds (user + system) the process `pid` has used, from /proc.
+pub fn cpu_seconds(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    let fields: Vec<&str> = stat
+        .rsplit_once(')')
+        .map(|(_, rest)| rest.split_whitespace().collect())
+        .unwrap_or_default();
+    let ticks = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    // utime and stime, fields 14 and 15 of the line (11 and 12 after the name).
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+/// Resident memory of the process `pid`, MiB.
+pub fn rss_mib(pid: u32) -> f64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next()?.parse::<f64>().ok())
+        .map_or(0.0, |kb| kb / 1024.0)
 }

@@ -6,7 +6,8 @@ through the steps a test drives from outside.
         --step live:drone1,drone2,drone3 --step gone:drone3 --step live:drone4 ...
 
 Each --step waits (up to --timeout s) until the table shows every named vehicle in
-that presence (`live`, `stale` or `gone`, from the row's data-presence), then prints one
+that presence (`live`, `stale` or `gone`, from the row's data-presence; `live` ones
+also drawn on the map, more than DRAWN_PX pixels of their colour), then prints one
 JSON line describing the page (rows: name, id, presence, slot colour, estimate and VPE
 cells; the map: pixels of each row's colour on the canvas; window.fleetStats; seconds
 the step took) and, unless it is the last step, reads one line from stdin before the
@@ -51,6 +52,10 @@ PAGE_STATE = """() => {
 }"""
 
 
+# Pixels of a vehicle's colour on the map that mean it is drawn (a marker is ~60).
+DRAWN_PX = 12
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--url", required=True)
@@ -77,7 +82,11 @@ def main():
                 while True:
                     st = page.evaluate(PAGE_STATE)
                     by_name = {r["name"]: r for r in st["rows"]}
-                    if all(n in by_name and by_name[n]["presence"] == presence for n in names):
+                    # A live vehicle must also be drawn (a marker's worth of its colour
+                    # on the map): its position comes with its once-a-second summary, a
+                    # moment after its token says it is there.
+                    if all(n in by_name and by_name[n]["presence"] == presence
+                           and (presence != "live" or st["pixels"].get(n, 0) > DRAWN_PX) for n in names):
                         break
                     if time.monotonic() - start > args.timeout:
                         raise RuntimeError(f"step {step}: after {args.timeout} s the rows are {st['rows']}")

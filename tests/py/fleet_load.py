@@ -2,8 +2,9 @@
 """Light stand-ins for many skyfuse vehicles on Zenoh, for the fleet view's tests and
 benchmark: each holds the liveliness token `<ns>/skyfuse/<name>/alive` and publishes
 `<ns>/skyfuse/<name>/pose` (the JSON skyfuse publishes, flying a circle of its own near
-a shared GNSS origin) at --rate Hz and `/health` (service, VPE, Zenoh, sensors) once a
-second, as skyfuse does.
+a shared GNSS origin) at --rate Hz, and `/health` (service, VPE, Zenoh, sensors) and
+`/summary` (the newest pose with the health's verdict, what the fleet view reads) once a
+second, as skyfuse does. (`skyfuse sim --fleet N` is the cheap stand-in for hundreds.)
 
     python tests/py/fleet_load.py --connect tcp/127.0.0.1:7447 --vehicles 50 --seconds 60
 
@@ -52,6 +53,15 @@ def health(name, started_us):
     }
 
 
+def summary(p, h):
+    """The fleet view's once-a-second message, as skyfuse's fleet::summary_json makes it."""
+    return {
+        "time_us": h["time_us"], "pose": p, "service": h["service"],
+        "vpe": {k: h["vpe"][k] for k in ("endpoints", "sending", "reason")},
+        "zenoh": h["zenoh"], "sensors": [{"id": s["id"], "health": s["health"]} for s in h["sensors"]],
+    }
+
+
 BAD = [b"", b"\xff\xfe\x00garbage", b"{", b"[1, 2, 3]", b'{"position": "here"}',
        b'{"position": [NaN, 0, 0]}', b'{"service": 7}', b'{"message": 5}', b"null"]
 
@@ -70,11 +80,12 @@ def main():
     names = [f"v{i:02d}" for i in range(args.vehicles)]
     prefix = {n: f"{args.namespace}/skyfuse/{n}" for n in names}
     tokens = [s.liveliness().declare_token(f"{prefix[n]}/alive") for n in names]
-    pubs = {n: (s.declare_publisher(f"{prefix[n]}/pose"), s.declare_publisher(f"{prefix[n]}/health")) for n in names}
+    pubs = {n: (s.declare_publisher(f"{prefix[n]}/pose"), s.declare_publisher(f"{prefix[n]}/health"),
+                s.declare_publisher(f"{prefix[n]}/summary")) for n in names}
     started = int(time.time() * 1e6)
-    sent = {"pose": [0, 0], "health": [0, 0], "bad": [0, 0]}
+    sent = {"pose": [0, 0], "health": [0, 0], "summary": [0, 0], "bad": [0, 0]}
     for i in range(args.bad):
-        key = f"{args.namespace}/skyfuse/bad/" + ("health", "events", "pose")[i % 3]
+        key = f"{args.namespace}/skyfuse/bad/" + ("health", "events", "summary")[i % 3]
         payload = BAD[i % len(BAD)]
         s.put(key, payload)
         sent["bad"][0] += 1
@@ -83,11 +94,16 @@ def main():
     next_pose, next_health, tick = t0, t0, 1.0 / args.rate
     while (now := time.monotonic()) - t0 < args.seconds:
         if now >= next_health:
-            for n in names:
-                b = json.dumps(health(n, started)).encode()
+            for i, n in enumerate(names):
+                h = health(n, started)
+                b = json.dumps(h).encode()
                 pubs[n][1].put(b)
                 sent["health"][0] += 1
                 sent["health"][1] += len(b)
+                b = json.dumps(summary(pose(now - t0, i), h)).encode()
+                pubs[n][2].put(b)
+                sent["summary"][0] += 1
+                sent["summary"][1] += len(b)
             next_health += 1.0
         for i, n in enumerate(names):
             b = json.dumps(pose(now - t0, i)).encode()
