@@ -75,11 +75,18 @@ fn discover_writes_a_config_that_run_fuses_from_as_it_is() {
 
     // `skyfuse run` takes the file as written (its [zenoh] connect reaches the sim).
     let run = Service::start(&["run", "-c", found.to_str().expect("path")], &[]);
+    // Valid and every input accepted, and the three the filter takes fused: the first
+    // valid pose can come from the camera a sample before the first fix is fused.
     let status = run.wait_status(Duration::from_secs(30), |s| {
         s["estimator"]["valid"] == true
             && s["sensors"]
                 .as_array()
                 .is_some_and(|a| a.iter().all(|x| x["accepted"].as_u64() > Some(0)))
+            && s["estimator"]["sources_used"].as_array().is_some_and(|u| {
+                ["gps", "odometry", "imu"]
+                    .iter()
+                    .all(|id| u.iter().any(|x| x == id))
+            })
     });
     assert_eq!(
         status["estimator"]["valid"],
