@@ -379,6 +379,17 @@ fn env_vars() -> Vec<(String, String)> {
     std::env::vars().collect()
 }
 
+/// A simulator's config (`skyfuse sim`, one vehicle or a fleet): told where to connect,
+/// it needs no listener of its own, as the config's (tcp/0.0.0.0:7447) would collide
+/// with the skyfuse it feeds.
+fn sim_config(path: Option<&std::path::Path>, net: &NetArgs) -> Result<Config, String> {
+    let mut c = load(path, net)?;
+    if !net.connect.is_empty() && net.listen.is_empty() {
+        c.zenoh.listen.clear();
+    }
+    Ok(c)
+}
+
 fn load(path: Option<&std::path::Path>, net: &NetArgs) -> Result<Config, String> {
     let mut c = Config::load(path, env_vars()).map_err(|e| e.to_string())?;
     net.apply(&mut c)?;
@@ -618,11 +629,7 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             pose_hz,
             ..
         } => {
-            let mut c = load(config.as_deref(), &net)?;
-            // As the single simulator: told where to connect, no listener of its own.
-            if !net.connect.is_empty() && net.listen.is_empty() {
-                c.zenoh.listen.clear();
-            }
+            let c = sim_config(config.as_deref(), &net)?;
             let mut shutdown = Box::pin(app::shutdown_signal());
             let Some(session) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
                 return Ok(());
@@ -746,12 +753,7 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             ..
         } => {
             let scn = scenario_at(&scenario, imu_hz)?;
-            let mut c = load(config.as_deref(), &net)?;
-            // Told where to connect, the simulator needs no listener of its own: the
-            // config's (tcp/0.0.0.0:7447) would collide with the skyfuse it feeds.
-            if !net.connect.is_empty() && net.listen.is_empty() {
-                c.zenoh.listen.clear();
-            }
+            let c = sim_config(config.as_deref(), &net)?;
             let mut shutdown = Box::pin(app::shutdown_signal());
             let Some(session) = open_zenoh(&c.zenoh, &mut shutdown).await? else {
                 return Ok(());

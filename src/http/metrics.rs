@@ -372,43 +372,9 @@ pub fn render(status: &Status, process: Option<ProcessStats>) -> String {
         status.controls.refused,
     );
 
-    let mut text = String::new();
-    if let Some(p) = process {
-        // The process collector's standard names, without the skyfuse prefix.
-        let mut reg = Registry::default();
-        let cpu: Counter<f64, AtomicU64> = Counter::default();
-        cpu.inc_by(p.cpu_seconds);
-        reg.register_with_unit(
-            "process_cpu",
-            "Total user and system CPU time",
-            Unit::Seconds,
-            cpu,
-        );
-        let rss: Gauge<f64, AtomicU64> = Gauge::default();
-        rss.set(p.resident_bytes);
-        reg.register_with_unit(
-            "process_resident_memory",
-            "Resident memory size",
-            Unit::Bytes,
-            rss,
-        );
-        let _ = encode_body(&mut text, &reg);
-    }
-    let mut main = String::new();
-    if encode(&mut main, &m.registry).is_err() {
-        return "# EOF\n".into();
-    }
-    // One `# EOF` at the very end: the process block goes before it.
-    match main.strip_suffix("# EOF\n") {
-        Some(body) => format!("{body}{text}# EOF\n"),
-        None => main,
-    }
+    m.encode_with(process)
 }
 
-/// `skyfuse monitor`'s `/metrics`: the fleet in aggregate. No family has a per-vehicle
-/// label (a thousand vehicles would be a thousand series in every family, and a vehicle
-/// that leaves would leave its series behind); per-vehicle state is in `/api/v1/fleet`.
-/// The one label is `presence`, with its three values always present.
 /// What `render_fleet` shows: plain numbers (this module does not reach into the fleet
 /// view, which serves it).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -425,15 +391,11 @@ pub struct FleetNumbers {
     pub refused: u64,
 }
 
+/// `skyfuse monitor`'s `/metrics`: the fleet in aggregate. No family has a per-vehicle
+/// label (a thousand vehicles would be a thousand series in every family, and a vehicle
+/// that leaves would leave its series behind); per-vehicle state is in `/api/v1/fleet`.
+/// The one label is `presence`, with its three values always present.
 pub fn render_fleet(n: FleetNumbers, process: Option<ProcessStats>) -> String {
-    let FleetNumbers {
-        live,
-        stale,
-        gone,
-        max_vehicles,
-        ..
-    } = n;
-    let counters = n;
     let mut m = Metrics {
         registry: Registry::with_prefix("skyfuse_fleet"),
     };
@@ -441,70 +403,79 @@ pub fn render_fleet(n: FleetNumbers, process: Option<ProcessStats>) -> String {
         "vehicles",
         "Vehicles known to the fleet view, by presence (live, stale, gone)",
     );
-    for (p, n) in [("live", live), ("stale", stale), ("gone", gone)] {
+    for (p, count) in [("live", n.live), ("stale", n.stale), ("gone", n.gone)] {
         vehicles
             .get_or_create(&vec![("presence", p.to_string())])
-            .set(n as f64);
+            .set(count as f64);
     }
     m.gauge(
         "vehicles_max",
         "Vehicles the view keeps at most ([fleet] max_vehicles)",
-        max_vehicles as f64,
+        n.max_vehicles as f64,
     );
     m.counter(
         "messages",
         "Messages received on the fleet keys",
-        counters.messages,
+        n.messages,
     );
     m.counter(
         "received_bytes",
         "Payload bytes received on the fleet keys",
-        counters.bytes,
+        n.bytes,
     );
     m.counter(
         "rejected",
         "Fleet messages that could not be read",
-        counters.rejected,
+        n.rejected,
     );
-    m.counter("joined", "Vehicles that joined the view", counters.joined);
+    m.counter("joined", "Vehicles that joined the view", n.joined);
     m.counter(
         "forgotten",
         "Vehicles dropped after forget_after_s gone",
-        counters.forgotten,
+        n.forgotten,
     );
     m.counter(
         "refused",
         "Vehicles not taken in (max_vehicles known, or an id too long)",
-        counters.refused,
+        n.refused,
     );
-    let mut text = String::new();
-    if let Some(p) = process {
-        let mut reg = Registry::default();
-        let cpu: Counter<f64, AtomicU64> = Counter::default();
-        cpu.inc_by(p.cpu_seconds);
-        reg.register_with_unit(
-            "process_cpu",
-            "Total user and system CPU time",
-            Unit::Seconds,
-            cpu,
-        );
-        let rss: Gauge<f64, AtomicU64> = Gauge::default();
-        rss.set(p.resident_bytes);
-        reg.register_with_unit(
-            "process_resident_memory",
-            "Resident memory size",
-            Unit::Bytes,
-            rss,
-        );
-        let _ = encode_body(&mut text, &reg);
-    }
-    let mut main = String::new();
-    if encode(&mut main, &m.registry).is_err() {
-        return "# EOF\n".into();
-    }
-    match main.strip_suffix("# EOF\n") {
-        Some(body) => format!("{body}{text}# EOF\n"),
-        None => main,
+    m.encode_with(process)
+}
+
+impl Metrics {
+    /// The registry in the text format, with the process collector's standard names
+    /// (without the skyfuse prefix) where `process` is known, and one `# EOF` at the
+    /// very end: the process block goes before it.
+    fn encode_with(&self, process: Option<ProcessStats>) -> String {
+        let mut text = String::new();
+        if let Some(p) = process {
+            let mut reg = Registry::default();
+            let cpu: Counter<f64, AtomicU64> = Counter::default();
+            cpu.inc_by(p.cpu_seconds);
+            reg.register_with_unit(
+                "process_cpu",
+                "Total user and system CPU time",
+                Unit::Seconds,
+                cpu,
+            );
+            let rss: Gauge<f64, AtomicU64> = Gauge::default();
+            rss.set(p.resident_bytes);
+            reg.register_with_unit(
+                "process_resident_memory",
+                "Resident memory size",
+                Unit::Bytes,
+                rss,
+            );
+            let _ = encode_body(&mut text, &reg);
+        }
+        let mut main = String::new();
+        if encode(&mut main, &self.registry).is_err() {
+            return "# EOF\n".into();
+        }
+        match main.strip_suffix("# EOF\n") {
+            Some(body) => format!("{body}{text}# EOF\n"),
+            None => main,
+        }
     }
 }
 

@@ -25,17 +25,10 @@ import sys
 import threading
 import time
 
-from probe import CHROMIUM_ARGS, cpu_s, free_port
+from probe import CHROMIUM_ARGS, cpu_s, free_port, rss_mib
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
-
-def rss_mib(pid):
-    with open(f"/proc/{pid}/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    return 0.0
 
 
 def wait_http(port, path="/healthz", timeout=30):

@@ -24,7 +24,7 @@ import os
 import sys
 import time
 
-from probe import CHROMIUM_ARGS  # noqa: E402
+from probe import open_page  # noqa: E402
 
 # Rows as the page shows them, and how many canvas pixels carry each row's colour.
 PAGE_STATE = """() => {
@@ -69,10 +69,7 @@ def main():
 
     errors = []
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=args.chromium, args=CHROMIUM_ARGS)
-        page = browser.new_page(viewport={"width": 1400, "height": 800})
-        page.on("pageerror", lambda e: errors.append(f"page error: {e}"))
-        page.on("console", lambda m: m.type == "error" and errors.append(f"console: {m.text}"))
+        browser, page = open_page(p, args.chromium, errors)
         page.goto(args.url)
         try:
             for i, step in enumerate(args.step):

@@ -22,7 +22,7 @@ import statistics
 import sys
 import time
 
-from probe import CHROMIUM_ARGS
+from probe import open_page
 
 ROWS = "() => [...document.querySelectorAll('#fleet-rows tr')].map((tr) => ({name: tr.dataset.name, presence: tr.dataset.presence}))"
 
@@ -40,10 +40,7 @@ def main():
 
     errors = []
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=args.chromium, args=CHROMIUM_ARGS)
-        page = browser.new_page(viewport={"width": 1400, "height": 800})
-        page.on("pageerror", lambda e: errors.append(f"page error: {e}"))
-        page.on("console", lambda m: m.type == "error" and errors.append(f"console: {m.text}"))
+        browser, page = open_page(p, args.chromium, errors)
         try:
             page.goto(args.url)
             page.wait_for_function(

@@ -24,18 +24,11 @@ import sys
 import time
 import urllib.request
 
-from probe import CHROMIUM_ARGS, cpu_s, free_port
+from probe import CHROMIUM_ARGS, cpu_s, free_port, rss_mib
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(os.path.dirname(HERE))
 
-
-def rss_mib(pid):
-    with open(f"/proc/{pid}/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    return 0.0
 
 
 def fleet(port):

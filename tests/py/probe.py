@@ -56,6 +56,25 @@ CHROMIUM_ARGS = [
 ]
 
 
+def rss_mib(pid):
+    """Resident memory of process `pid`, MiB."""
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return 0.0
+
+
+def open_page(playwright, chromium, errors):
+    """A headless Chromium page (Debian's browser) whose page errors and console errors
+    are appended to `errors`."""
+    browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    page = browser.new_page(viewport={"width": 1400, "height": 800})
+    page.on("pageerror", lambda e: errors.append(f"page error: {e}"))
+    page.on("console", lambda m: m.type == "error" and errors.append(f"console: {m.text}"))
+    return browser, page
+
+
 def run_with_sim(binary, extra=(), out=None, timeout=30.0):
     """`skyfuse run` on free loopback ports fed by `skyfuse sim` (the demo's sensors and
     rates over Zenoh), started and waited for until the estimate is valid. Returns
