@@ -360,6 +360,18 @@ impl<'a> Cols<'a> {
         })
     }
 
+    /// `name`, or in a log older than the field's name, what PX4 called it before
+    /// (vehicle_local_position's `heading` was `yaw`, distance_sensor's `variance` was
+    /// `covariance`): a real log is not refused over a rename.
+    pub(crate) fn get_renamed(&self, name: &str, before: &str) -> Result<usize, Px4LogError> {
+        self.opt(name)
+            .or_else(|| self.opt(before))
+            .ok_or_else(|| Px4LogError::MissingColumn {
+                file: self.file.to_path_buf(),
+                column: name.to_string(),
+            })
+    }
+
     pub(crate) fn opt(&self, name: &str) -> Option<usize> {
         let i = self.header.iter().position(|h| h == name)?;
         self.read.borrow_mut()[i] = true;

@@ -261,7 +261,8 @@ impl Mapper {
                 distance: h.get("current_distance")?,
                 min: h.get("min_distance")?,
                 max: h.get("max_distance")?,
-                variance: h.get("variance")?,
+                // One value, a variance, whatever older logs called it.
+                variance: h.get_renamed("variance", "covariance")?,
                 quality: h.get("signal_quality")?,
                 orientation: h.get("orientation")?,
             }),
@@ -322,7 +323,7 @@ impl Mapper {
                 t,
                 pos: h.list(["x", "y", "z"])?,
                 vel: h.list(["vx", "vy", "vz"])?,
-                heading: h.get("heading")?,
+                heading: h.get_renamed("heading", "yaw")?,
                 valid: h.list(["xy_valid", "z_valid", "v_xy_valid", "v_z_valid"])?,
             }),
             Kind::Ekf2FlowGyro => Mapper::Ekf2FlowGyro(Vec3Pair {

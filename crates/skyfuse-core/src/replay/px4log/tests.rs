@@ -536,6 +536,27 @@ fn missing_column_and_empty_file_fail_the_read() {
     ));
 }
 
+/// PX4 before v1.11 logged the range finder's variance as `covariance`: such a log
+/// reads (a real one: px4-ulog-rs's esc_status_log fixture, refused whole before).
+#[test]
+fn a_pre_1_11_distance_sensor_reads_its_covariance_as_the_variance() {
+    let dir = TempDir::new("v110");
+    dir.write(
+        "distance_sensor_0.csv",
+        "timestamp,current_distance,min_distance,max_distance,covariance,signal_quality,orientation\n1,1.5,0.1,10,0.0004,100,25\n",
+    );
+    let log = read_dir(&dir.0).unwrap_or_else(|e| panic!("{e}"));
+    let SensorData::Range(r) = &first_of(&log, "range").data else {
+        panic!("not range")
+    };
+    assert!(close(r.distance_m, 1.5, 1e-9));
+    assert!(
+        r.variance.is_some_and(|v| close(v, 0.0004, 1e-9)),
+        "{:?}",
+        r.variance
+    );
+}
+
 #[test]
 fn px4_1_14_and_1_15_layouts_read() {
     // PX4 1.14/1.15 field names (vehicle_optical_flow, the renumbered
