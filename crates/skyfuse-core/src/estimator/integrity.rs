@@ -19,6 +19,13 @@
 //!   axis's. The pose is valid only with `HPL ≤ horizontal_alert_m` and
 //!   `VPL ≤ vertical_alert_m`. An integrity failure is a valid pose whose true error
 //!   exceeds its protection level.
+//! - **A refusal is an exclusion too.** While the innovation gate refuses every
+//!   measurement of a channel (nothing accepted there since), the estimate and the
+//!   refused measurements disagree and nothing has said which is wrong: the protection
+//!   level covers the case that the measurement is right (where the estimate would go
+//!   if it were exact, plus what the refused velocities add up to since), and so does
+//!   the covariance sent. A filter that leaves its only height source on a wrong
+//!   acceleration bias shows its bound growing with the runaway instead of σz 0.1 m.
 //! - **Sub-filters start again** from the main filter once they have been quiet (test
 //!   ratio under [`RESTART_QUIET_RATIO`]) for `restart_s`: a sub-filter left to run
 //!   forever drifts as far as its remaining sources let it (a flow without its GNSS),
@@ -218,7 +225,24 @@ pub struct IntegrityState {
     /// to the covariance sent so that an autopilot weighs what it cannot see.
     pub unresolved_var: [f64; 3],
     pub exclusions: u64,
+    /// Per channel (horizontal, vertical): the measurements refused since the last
+    /// one accepted there.
+    pub refused: [Option<RefusedStreak>; 2],
 }
+
+/// What the refused measurements of a channel say the estimate may be wrong by.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RefusedStreak {
+    pub since: i64,
+    pub last: i64,
+    /// The largest |shift| of the position, per axis, were a refused measurement
+    /// exact (m), and the refused velocity shifts integrated over time (m).
+    pub shift: Vector3<f64>,
+    pub drift: Vector3<f64>,
+}
+
+/// A refused velocity counts for at most this long since the previous refusal, µs.
+const DRIFT_STEP_MAX_US: i64 = 1_000_000;
 
 impl IntegrityState {
     /// `source` informed these channels of the main filter at `t`.
@@ -232,6 +256,48 @@ impl IntegrityState {
         if ch.vertical {
             c.vertical = Some(t);
         }
+    }
+
+    /// An aiding measurement of these channels was accepted: they are held again.
+    pub fn held(&mut self, ch: Channels) {
+        if ch.horizontal {
+            self.refused[0] = None;
+        }
+        if ch.vertical {
+            self.refused[1] = None;
+        }
+    }
+
+    /// An aiding measurement of these channels was refused at `t`; were it exact the
+    /// position would move by `dp` and the velocity by `dv`.
+    pub fn refused(&mut self, ch: Channels, t: i64, dp: Vector3<f64>, dv: Vector3<f64>) {
+        for (c, on) in [ch.horizontal, ch.vertical].into_iter().enumerate() {
+            if !on {
+                continue;
+            }
+            let axes = if c == 0 { 0..2 } else { 2..3 };
+            let streak = self.refused[c].get_or_insert(RefusedStreak {
+                since: t,
+                last: t,
+                shift: Vector3::zeros(),
+                drift: Vector3::zeros(),
+            });
+            let dt = ((t - streak.last).clamp(0, DRIFT_STEP_MAX_US)) as f64 * 1e-6;
+            for a in axes {
+                streak.shift[a] = streak.shift[a].max(dp[a].abs());
+                streak.drift[a] += dv[a].abs() * dt;
+            }
+            streak.last = t;
+        }
+    }
+
+    /// Per axis (ENU), what the refused measurements say the estimate may be wrong by, m.
+    pub fn refused_extent(&self) -> Vector3<f64> {
+        let mut e = Vector3::zeros();
+        for s in self.refused.iter().flatten() {
+            e += s.shift + s.drift;
+        }
+        e
     }
 
     pub fn is_excluded(&self, source: &str) -> bool {
@@ -365,6 +431,14 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
         }
         if tests[i].source != sub.without {
             tests[i].source = sub.without.clone();
+        }
+    }
+    // The refused measurements' case (see the module's docs).
+    let refused = core.integrity.refused_extent();
+    for a in 0..3 {
+        if refused[a] > 0.0 {
+            pl[a] = pl[a].max(refused[a] + cfg.k_md * sigma0[a]);
+            unresolved[a] = unresolved[a].max(refused[a] * refused[a]);
         }
     }
     // A GNSS that no second receiver checks: its unreported error (see
@@ -512,6 +586,42 @@ mod tests {
         );
         let m = Measurement::of_states(IDX_P, 3, &Vector3::zeros(), &r);
         assert!(Channels::of(&m).horizontal && Channels::of(&m).vertical);
+    }
+
+    /// A channel whose every measurement is refused carries the largest shift a
+    /// refused one would have made plus the refused velocities integrated over the
+    /// time refused (each step at most [`DRIFT_STEP_MAX_US`]); one accepted
+    /// measurement of that channel clears it, and the other channel keeps its own.
+    #[test]
+    fn refused_measurements_bound_the_estimate_until_one_is_accepted() {
+        let (h, v) = (
+            Channels {
+                horizontal: true,
+                vertical: false,
+            },
+            Channels {
+                horizontal: false,
+                vertical: true,
+            },
+        );
+        let mut st = IntegrityState::default();
+        assert_eq!(st.refused_extent(), Vector3::zeros());
+        let dv = Vector3::new(0.5, -0.2, 9.0);
+        st.refused(h, 0, Vector3::new(2.0, -1.0, 7.0), dv);
+        st.refused(h, 500_000, Vector3::new(-1.0, 3.0, 0.0), dv);
+        // 10 s later: counted as 1 s.
+        st.refused(h, 10_500_000, Vector3::zeros(), dv);
+        let e = st.refused_extent();
+        assert!((e.x - (2.0 + 0.5 * 1.5)).abs() < 1e-12, "{e}");
+        assert!((e.y - (3.0 + 0.2 * 1.5)).abs() < 1e-12, "{e}");
+        assert_eq!(e.z, 0.0, "a horizontal refusal says nothing of the height");
+        st.refused(v, 0, Vector3::new(0.0, 0.0, -4.0), Vector3::zeros());
+        assert_eq!(st.refused_extent().z, 4.0);
+        st.held(h);
+        let e = st.refused_extent();
+        assert_eq!((e.x, e.y, e.z), (0.0, 0.0, 4.0));
+        st.held(v);
+        assert_eq!(st.refused_extent(), Vector3::zeros());
     }
 
     #[test]

@@ -18,7 +18,7 @@
 
 use super::attitude::cos_tilt;
 use super::config::{DEFAULT_RANGE_MAX_M, DEFAULT_RANGE_MIN_M};
-use super::ekf::{Measurement, IDX_P};
+use super::ekf::Measurement;
 use super::{Core, Ctx, Event};
 use crate::sample::Range;
 
@@ -139,10 +139,7 @@ fn reset_terrain_if_rejected(
         return;
     }
     // The terrain of every filter moves under its own height: none of them moves.
-    bank.each(|ekf| {
-        let terrain = ekf.x[IDX_P + 2] - h_meas;
-        ekf.reset_terrain(terrain, r);
-    });
+    bank.each(|ekf| ekf.reset_terrain(h_meas, r));
     core.event(
         t,
         Some(source),
