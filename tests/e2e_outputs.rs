@@ -136,7 +136,8 @@ fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
     ));
     assert!(z["json"].as_u64().unwrap_or(0) > 50, "{z}");
     assert!(z["cdr"].as_u64().unwrap_or(0) > 50, "{z}");
-    assert!(z["health"].as_u64().unwrap_or(0) >= 2, "{z}");
+    // The full health goes every [output] health_interval_s (5 s).
+    assert!(z["health"].as_u64().unwrap_or(9) <= 1, "{z}");
     assert!(z["matched"].as_u64().unwrap_or(0) > 20, "{z}");
     // The JSON's position is to the millimetre, the CDR's the f64 itself.
     assert!(f(&z["max_position_diff"]) <= 0.000_5 + 1e-9, "{z}");
@@ -146,8 +147,8 @@ fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
     assert!(f(&z["last_json"]["position"][2]) > 1.5, "{z}");
     // The pose comes at [output] pose_rate_hz (50) on its own clock, from 200 Hz of IMU
     // (a limit of "a period since the last one" would give ~40 Hz with jittered
-    // samples); the debug series at most at debug_rate_hz (50): the T265's from 200 Hz,
-    // the flow's from its own 50 Hz without losing any to jitter.
+    // samples); the debug series at most at debug_rate_hz (10): the T265's from 200 Hz,
+    // the flow's from its own 50 Hz.
     let pose_rate = f(&z["json_rate_hz"]);
     assert!(
         (46.0..=50.5).contains(&pose_rate),
@@ -160,15 +161,14 @@ fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
     for (series, r) in debug {
         // null: one message in the window, no rate to speak of.
         assert!(
-            r.as_f64().is_none_or(|r| r <= 50.5),
+            r.as_f64().is_none_or(|r| r <= 10.5),
             "{series} at {r} Hz: {z}"
         );
     }
-    // At least the series flows near its rate: the flow's came at 45-50 Hz on this
-    // 2-vCPU VM (under 47 Hz in 1 run of 3 alone, stop 48), a measure of the machine
-    // as much as of the code; the upper bound above is the one the limiter promises.
-    assert!(f(&debug["oriUAV_t265"]) > 40.0, "{z}");
-    assert!(f(&debug["OF_sum"]) > 40.0, "{z}");
+    // At least the series flows near its rate (the upper bound above is the one the
+    // limiter promises).
+    assert!(f(&debug["oriUAV_t265"]) > 8.0, "{z}");
+    assert!(f(&debug["OF_sum"]) > 8.0, "{z}");
 }
 
 #[test]

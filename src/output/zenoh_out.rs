@@ -15,7 +15,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::broadcast;
 
-const HEALTH_INTERVAL: Duration = Duration::from_secs(1);
+/// The summary's period; the full health goes every `[output] health_interval_s` of them.
+const SUMMARY_INTERVAL: Duration = Duration::from_secs(1);
 
 /// Counters for the status API.
 #[derive(Debug, Default)]
@@ -375,8 +376,10 @@ pub async fn run(
     stats: Arc<ZenohOutStats>,
 ) {
     let mut sent_debug: BTreeMap<DebugTopic, i64> = BTreeMap::new();
-    let mut health = tokio::time::interval(HEALTH_INTERVAL);
-    health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut summary_tick = tokio::time::interval(SUMMARY_INTERVAL);
+    summary_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    // The first tick publishes the health too: a new subscriber learns who this is at once.
+    let mut ticks = 0u64;
     // `attachment`: rmw_zenoh's, on its keys.
     let put = |key: String, payload: Vec<u8>, attachment: Option<Vec<u8>>| {
         let session = session.clone();
@@ -509,12 +512,15 @@ pub async fn run(
                 Err(broadcast::error::RecvError::Lagged(n)) => stats.error(format!("{n} events skipped (output slower than events)")),
                 Err(broadcast::error::RecvError::Closed) => break,
             },
-            _ = health.tick() => {
+            _ = summary_tick.tick() => {
                 if cfg.json {
                     let h = (inp.health)();
-                    if put(format!("{prefix}/health"), h.to_string().into_bytes(), None).await {
+                    if ticks.is_multiple_of(cfg.health_interval_s.max(1))
+                        && put(format!("{prefix}/health"), h.to_string().into_bytes(), None).await
+                    {
                         stats.health.fetch_add(1, Relaxed);
                     }
+                    ticks += 1;
                     // The fleet view's once-a-second message: the newest pose with the
                     // health's verdict (a monitor of many vehicles reads only this).
                     let pose = inp.pose.borrow().clone().and_then(|p| {
