@@ -171,6 +171,49 @@ fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
     assert!(f(&debug["OF_sum"]) > 8.0, "{z}");
 }
 
+/// What one vehicle's default outputs may cost on the link, payload bytes a second
+/// (issue 46: 50 vehicles on one ground link; BENCHMARKS.md, "Fleet at scale").
+const ONE_VEHICLE_BUDGET_BYTES_PER_S: f64 = 50_000.0;
+
+#[test]
+fn one_demo_vehicles_default_outputs_stay_under_50_kb_a_second() {
+    let svc = Service::start(&["demo", "--no-browser"], &[]);
+    // In the air (take-off from 4 s), where the pose lists the most sources.
+    std::thread::sleep(Duration::from_secs(6));
+    let bw = json(&run_py(
+        "vehicle_bandwidth.py",
+        &[
+            "--connect",
+            &svc.zenoh_endpoint(),
+            "--seconds",
+            "20",
+            "--vehicle",
+            "demo",
+        ],
+    ));
+    let keys = &bw["keys"];
+    let rate = |key: &str| f(&keys[key]["msgs_per_s"]);
+    // Every output there, at its rate: the budget is not met by sending nothing.
+    let pose_hz = rate("skyfuse/demo/pose");
+    assert!(pose_hz > 40.0, "pose at {pose_hz} msg/s: {bw}");
+    assert!(rate("data_fusion/pose_msg") > 40.0, "{bw}");
+    assert!((0.8..=1.3).contains(&rate("skyfuse/demo/summary")), "{bw}");
+    // The full health every [output] health_interval_s (5): four or five in 20 s.
+    assert!((0.1..=0.35).contains(&rate("skyfuse/demo/health")), "{bw}");
+    // The debug series at [output] debug_rate_hz (10), the camera's from 200 Hz.
+    for series in ["oriUAV_t265", "OF_sum"] {
+        let hz = rate(&format!("data_fusion/{series}"));
+        assert!((7.0..=10.6).contains(&hz), "{series} at {hz} msg/s: {bw}");
+    }
+    // Scaled up to the full pose rate, so a slow machine cannot pass by publishing less.
+    let total = f(&bw["total_bytes_per_s"]);
+    let at_full_rate = total * (50.0 / pose_hz).max(1.0);
+    assert!(
+        at_full_rate < ONE_VEHICLE_BUDGET_BYTES_PER_S,
+        "{total} B/s ({at_full_rate:.0} at 50 poses/s): {bw}"
+    );
+}
+
 #[test]
 fn no_position_source_means_no_vision_position_estimate() {
     let (svc, udp) = demo_with_mavlink_udp();
