@@ -476,8 +476,12 @@ pub struct OutputConfig {
     pub ros2_frame_id: String,
     /// Largest pose rate on Zenoh (and to the recorder), Hz.
     pub pose_rate_hz: f64,
-    /// Largest rate of the debug series on Zenoh, Hz: each series' newest point.
+    /// Largest rate of the debug series on Zenoh, Hz: each series' newest point; 0
+    /// sends each point the estimator makes.
     pub debug_rate_hz: f64,
+    /// Seconds between two `<prefix>/health` messages (whole, at least 1); the summary
+    /// carries its verdict every second.
+    pub health_interval_s: u64,
     /// Announce the ROS 2 outputs with zenoh-bridge-ros2dds liveliness tokens, so ROS 2
     /// tools see the topics with their types, and list the bridges' topics.
     pub ros2_announce: bool,
@@ -529,7 +533,13 @@ pub const DEFAULT_POSE_KEY: &str = "data_fusion/pose_msg";
 pub const DEFAULT_DEBUG_PREFIX: &str = "data_fusion";
 pub const DEFAULT_ROS_FRAME_ID: &str = "map";
 pub const DEFAULT_POSE_RATE_HZ: f64 = 50.0;
-pub const DEFAULT_DEBUG_RATE_HZ: f64 = 50.0;
+/// Enough for rqt_plot to draw the seed's series smoothly; at 50 Hz the eight series
+/// were 370 messages a second (14 KB/s), more messages than all the other outputs.
+pub const DEFAULT_DEBUG_RATE_HZ: f64 = 10.0;
+/// The full health is ~10 KB (every input's counters, the estimator's detail): once a
+/// second it was a fifth of a vehicle's output budget, while the fleet view reads the
+/// once-a-second summary and a person the status API.
+pub const DEFAULT_HEALTH_INTERVAL_S: u64 = 5;
 
 impl Default for OutputConfig {
     fn default() -> Self {
@@ -543,6 +553,7 @@ impl Default for OutputConfig {
             ros2_frame_id: DEFAULT_ROS_FRAME_ID.into(),
             pose_rate_hz: DEFAULT_POSE_RATE_HZ,
             debug_rate_hz: DEFAULT_DEBUG_RATE_HZ,
+            health_interval_s: DEFAULT_HEALTH_INTERVAL_S,
             ros2_announce: true,
             ros2_qos: DEFAULT_QOS.into(),
             ros_distro: "humble".into(),
@@ -1066,13 +1077,20 @@ impl Config {
                 self.mavlink.max_age_ms
             ));
         }
-        for (name, rate) in [
-            ("pose_rate_hz", self.output.pose_rate_hz),
-            ("debug_rate_hz", self.output.debug_rate_hz),
-        ] {
-            if !(rate.is_finite() && rate > 0.0) {
-                return Err(format!("output.{name} = {rate} must be positive"));
-            }
+        let pose_rate = self.output.pose_rate_hz;
+        if !(pose_rate.is_finite() && pose_rate > 0.0) {
+            return Err(format!(
+                "output.pose_rate_hz = {pose_rate} must be positive"
+            ));
+        }
+        let debug_rate = self.output.debug_rate_hz;
+        if !(debug_rate.is_finite() && debug_rate >= 0.0) {
+            return Err(format!(
+                "output.debug_rate_hz = {debug_rate} must be positive, or 0 for every point"
+            ));
+        }
+        if self.output.health_interval_s == 0 {
+            return Err("output.health_interval_s = 0 must be at least 1".into());
         }
         for (name, key) in [
             (
@@ -1671,14 +1689,25 @@ mod tests {
 
     #[test]
     fn output_rates_must_be_positive_and_finite() {
-        for (key, value) in [("pose_rate_hz", "0.0"), ("debug_rate_hz", "nan")] {
+        for (key, value) in [
+            ("pose_rate_hz", "0.0"),
+            ("debug_rate_hz", "nan"),
+            ("debug_rate_hz", "-1.0"),
+        ] {
             let err = Config::from_toml_str(&format!("[output]\n{key} = {value}\n"), "t")
                 .unwrap_err()
                 .to_string();
             assert!(err.contains(&format!("output.{key}")), "{err}");
         }
-        let ok = Config::from_toml_str("[output]\ndebug_rate_hz = 10.0\n", "t").unwrap();
-        assert_eq!(ok.output.debug_rate_hz, 10.0);
+        let ok = Config::from_toml_str("[output]\ndebug_rate_hz = 25.0\n", "t").unwrap();
+        assert_eq!(ok.output.debug_rate_hz, 25.0);
+        // 0: every point.
+        let every = Config::from_toml_str("[output]\ndebug_rate_hz = 0\n", "t").unwrap();
+        assert_eq!(every.output.debug_rate_hz, 0.0);
+        let err = Config::from_toml_str("[output]\nhealth_interval_s = 0\n", "t")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("output.health_interval_s"), "{err}");
     }
 
     #[test]

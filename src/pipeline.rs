@@ -225,7 +225,7 @@ pub struct PipelineOutputs {
     /// for each one (Zenoh, the recorder).
     pub pose_out: PoseSender,
     pub pose_rate: RateLimit,
-    /// The debug series at `[output] debug_rate_hz`.
+    /// The debug series at `[output] debug_rate_hz` (0: with every sample).
     pub debug: DebugSender,
     pub debug_rate: RateLimit,
 }
@@ -243,10 +243,15 @@ pub struct RateLimit {
 }
 
 impl RateLimit {
-    /// `rate_hz` must be positive (the config checks it).
+    /// `rate_hz` 0 lets every item through; otherwise it must be positive and finite
+    /// (the config checks it).
     pub fn hz(rate_hz: f64) -> Self {
         Self {
-            period_us: ((1e6 / rate_hz).round() as i64).max(1),
+            period_us: if rate_hz > 0.0 {
+                ((1e6 / rate_hz).round() as i64).max(1)
+            } else {
+                0
+            },
             slot: None,
         }
     }
@@ -254,6 +259,9 @@ impl RateLimit {
     /// Whether an item at sample time `t` goes out (and is counted as gone).
     pub fn due(&mut self, t: i64) -> bool {
         let p = self.period_us;
+        if p == 0 {
+            return true;
+        }
         let next = match self.slot {
             Some((last, next)) if t >= last && t < next - p / 4 => return false,
             // On the grid.
@@ -723,6 +731,13 @@ mod tests {
         // Time went back (a clock restart): at once, not a period after the old time.
         assert!(limit.due(2_000_000));
         assert!(!limit.due(2_050_000));
+    }
+
+    #[test]
+    fn a_rate_limit_of_zero_lets_every_item_through() {
+        let mut limit = RateLimit::hz(0.0);
+        let times = [1_000_000, 1_000_001, 1_000_001, 1_005_000, 900_000];
+        assert!(times.iter().all(|&t| limit.due(t)));
     }
 
     fn imu(t: i64) -> Sample {

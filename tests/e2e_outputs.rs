@@ -136,17 +136,19 @@ fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
     ));
     assert!(z["json"].as_u64().unwrap_or(0) > 50, "{z}");
     assert!(z["cdr"].as_u64().unwrap_or(0) > 50, "{z}");
-    assert!(z["health"].as_u64().unwrap_or(0) >= 2, "{z}");
+    // The full health goes every [output] health_interval_s (5 s).
+    assert!(z["health"].as_u64().unwrap_or(9) <= 1, "{z}");
     assert!(z["matched"].as_u64().unwrap_or(0) > 20, "{z}");
-    assert!(f(&z["max_position_diff"]) < 1e-9, "{z}");
+    // The JSON's position is to the millimetre, the CDR's the f64 itself.
+    assert!(f(&z["max_position_diff"]) <= 0.000_5 + 1e-9, "{z}");
     assert_eq!(z["last_cdr"]["frame_id"], "map");
     assert_eq!(z["errors"].as_array().map(Vec::len), Some(0), "{z}");
     // ENU JSON and NED VPE describe the same vehicle: up is positive here.
     assert!(f(&z["last_json"]["position"][2]) > 1.5, "{z}");
     // The pose comes at [output] pose_rate_hz (50) on its own clock, from 200 Hz of IMU
     // (a limit of "a period since the last one" would give ~40 Hz with jittered
-    // samples); the debug series at most at debug_rate_hz (50): the T265's from 200 Hz,
-    // the flow's from its own 50 Hz without losing any to jitter.
+    // samples); the debug series at most at debug_rate_hz (10): the T265's from 200 Hz,
+    // the flow's from its own 50 Hz.
     let pose_rate = f(&z["json_rate_hz"]);
     assert!(
         (46.0..=50.5).contains(&pose_rate),
@@ -159,15 +161,57 @@ fn demo_sends_vision_position_estimate_at_rate_with_ned_signs_and_zenoh_pose() {
     for (series, r) in debug {
         // null: one message in the window, no rate to speak of.
         assert!(
-            r.as_f64().is_none_or(|r| r <= 50.5),
+            r.as_f64().is_none_or(|r| r <= 10.5),
             "{series} at {r} Hz: {z}"
         );
     }
-    // At least the series flows near its rate: the flow's came at 45-50 Hz on this
-    // 2-vCPU VM (under 47 Hz in 1 run of 3 alone, stop 48), a measure of the machine
-    // as much as of the code; the upper bound above is the one the limiter promises.
-    assert!(f(&debug["oriUAV_t265"]) > 40.0, "{z}");
-    assert!(f(&debug["OF_sum"]) > 40.0, "{z}");
+    // At least the series flows near its rate (the upper bound above is the one the
+    // limiter promises).
+    assert!(f(&debug["oriUAV_t265"]) > 8.0, "{z}");
+    assert!(f(&debug["OF_sum"]) > 8.0, "{z}");
+}
+
+/// What one vehicle's default outputs may cost on the link, payload bytes a second
+/// (issue 46: 50 vehicles on one ground link; BENCHMARKS.md, "Fleet at scale").
+const ONE_VEHICLE_BUDGET_BYTES_PER_S: f64 = 50_000.0;
+
+#[test]
+fn one_demo_vehicles_default_outputs_stay_under_50_kb_a_second() {
+    let svc = Service::start(&["demo", "--no-browser"], &[]);
+    // In the air (take-off from 4 s), where the pose lists the most sources.
+    std::thread::sleep(Duration::from_secs(6));
+    let bw = json(&run_py(
+        "vehicle_bandwidth.py",
+        &[
+            "--connect",
+            &svc.zenoh_endpoint(),
+            "--seconds",
+            "20",
+            "--vehicle",
+            "demo",
+        ],
+    ));
+    let keys = &bw["keys"];
+    let rate = |key: &str| f(&keys[key]["msgs_per_s"]);
+    // Every output there, at its rate: the budget is not met by sending nothing.
+    let pose_hz = rate("skyfuse/demo/pose");
+    assert!(pose_hz > 40.0, "pose at {pose_hz} msg/s: {bw}");
+    assert!(rate("data_fusion/pose_msg") > 40.0, "{bw}");
+    assert!((0.8..=1.3).contains(&rate("skyfuse/demo/summary")), "{bw}");
+    // The full health every [output] health_interval_s (5): four or five in 20 s.
+    assert!((0.1..=0.35).contains(&rate("skyfuse/demo/health")), "{bw}");
+    // The debug series at [output] debug_rate_hz (10), the camera's from 200 Hz.
+    for series in ["oriUAV_t265", "OF_sum"] {
+        let hz = rate(&format!("data_fusion/{series}"));
+        assert!((7.0..=10.6).contains(&hz), "{series} at {hz} msg/s: {bw}");
+    }
+    // Scaled up to the full pose rate, so a slow machine cannot pass by publishing less.
+    let total = f(&bw["total_bytes_per_s"]);
+    let at_full_rate = total * (50.0 / pose_hz).max(1.0);
+    assert!(
+        at_full_rate < ONE_VEHICLE_BUDGET_BYTES_PER_S,
+        "{total} B/s ({at_full_rate:.0} at 50 poses/s): {bw}"
+    );
 }
 
 #[test]

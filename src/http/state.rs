@@ -208,7 +208,8 @@ impl AppState {
     }
 
     /// Health as published on `<prefix>/health`: sensors and the estimator's verdict.
-    /// `<prefix>/health`, once a second: the sensors and the estimator as in the status,
+    /// `<prefix>/health`, every `[output] health_interval_s` (the summary is built from it
+    /// every second): the sensors and the estimator as in the status,
     /// plus what the fleet view shows of this vehicle (who it is, where its dashboard is,
     /// whether the autopilot gets poses, its Zenoh link).
     pub fn health_json(&self) -> serde_json::Value {

@@ -5,6 +5,7 @@
 //! - [`zenoh_out`]: JSON and ROS 2 CDR on Zenoh.
 
 pub mod mavlink_out;
+pub mod precision;
 pub mod summary;
 pub mod timesync;
 pub mod vpe;

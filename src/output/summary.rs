@@ -14,6 +14,10 @@ pub const SUMMARY: &str = "summary";
 /// The liveliness token a vehicle holds while it runs.
 pub const ALIVE: &str = "alive";
 
+use super::precision::{
+    decimals, significant, COVARIANCE_DIGITS, DEGREE_DECIMALS, METRE_DECIMALS, QUATERNION_DECIMALS,
+};
+
 /// `<prefix>/summary`, as a vehicle publishes it once a second: its newest pose (the
 /// `<prefix>/pose` message, null before the first) cut to what the fleet view reads,
 /// and the parts of its health message it reads (who it is, VISION_POSITION_ESTIMATE,
@@ -23,10 +27,9 @@ pub const ALIVE: &str = "alive";
 ///
 /// The pose keeps `time_us`, `position`, `orientation`, `velocity`,
 /// `position_covariance`, `sources`, `valid`, `invalid_reason`, `origin`, its numbers
-/// rounded to what a fleet map shows (position and velocity to the millimetre,
-/// orientation to 1e-6, covariances to four significant digits, the origin to 1e-8°);
-/// the full-precision pose with every covariance and the protection levels stays on
-/// `<prefix>/pose`.
+/// to the precision of [`super::precision`] (as `<prefix>/pose` writes them; rounded
+/// again here for poses from elsewhere); the pose with every covariance and the
+/// protection levels stays on `<prefix>/pose`.
 pub fn summary_json(
     pose: Option<serde_json::Value>,
     health: &serde_json::Value,
@@ -40,21 +43,21 @@ pub fn summary_json(
         })
         .unwrap_or_default();
     let pose = pose.filter(|p| p.is_object()).map(|p| {
-        let dec = |key: &str, d: i32| rounded(&p[key], |x| round_decimals(x, d));
+        let dec = |key: &str, d: i32| rounded(&p[key], |x| decimals(x, d));
         serde_json::json!({
             "time_us": p["time_us"],
-            "position": dec("position", 3),
-            "orientation": dec("orientation", 6),
-            "velocity": dec("velocity", 3),
-            "position_covariance": rounded(&p["position_covariance"], |x| round_significant(x, 4)),
+            "position": dec("position", METRE_DECIMALS),
+            "orientation": dec("orientation", QUATERNION_DECIMALS),
+            "velocity": dec("velocity", METRE_DECIMALS),
+            "position_covariance": rounded(&p["position_covariance"], |x| significant(x, COVARIANCE_DIGITS)),
             "sources": p["sources"],
             "valid": p["valid"],
             "invalid_reason": p["invalid_reason"],
             "origin": if p["origin"].is_object() {
                 serde_json::json!({
-                    "lat": rounded(&p["origin"]["lat"], |x| round_decimals(x, 8)),
-                    "lon": rounded(&p["origin"]["lon"], |x| round_decimals(x, 8)),
-                    "alt": rounded(&p["origin"]["alt"], |x| round_decimals(x, 3)),
+                    "lat": rounded(&p["origin"]["lat"], |x| decimals(x, DEGREE_DECIMALS)),
+                    "lon": rounded(&p["origin"]["lon"], |x| decimals(x, DEGREE_DECIMALS)),
+                    "alt": rounded(&p["origin"]["alt"], |x| decimals(x, METRE_DECIMALS)),
                 })
             } else {
                 serde_json::Value::Null
@@ -91,23 +94,5 @@ fn rounded_dyn(v: &serde_json::Value, f: &dyn Fn(f64) -> f64) -> serde_json::Val
             .and_then(serde_json::Number::from_f64)
             .map_or_else(|| v.clone(), serde_json::Value::Number),
         _ => v.clone(),
-    }
-}
-
-fn round_decimals(x: f64, d: i32) -> f64 {
-    let m = 10f64.powi(d);
-    (x * m).round() / m
-}
-
-fn round_significant(x: f64, digits: i32) -> f64 {
-    if x == 0.0 || !x.is_finite() {
-        return x;
-    }
-    let d = digits - 1 - x.abs().log10().floor() as i32;
-    if d >= 0 {
-        round_decimals(x, d)
-    } else {
-        let m = 10f64.powi(-d);
-        (x / m).round() * m
     }
 }

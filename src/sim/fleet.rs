@@ -109,7 +109,8 @@ impl Vehicle {
                 horizontal_alert_m: 10.0,
                 vertical_alert_m: 15.0,
             },
-        };
+        }
+        .rounded();
         serde_json::to_value(m).unwrap_or(serde_json::Value::Null)
     }
 

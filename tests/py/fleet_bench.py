@@ -11,9 +11,9 @@ Per round: (a) the monitor's CPU (share of one core, from /proc) and resident me
 while it watches N vehicles with nobody looking, (b) the same with the fleet page open
 in Debian's headless Chromium, and the page's animation frame rate, canvas draw time and
 bytes received per second (window.fleetStats); medians over the rounds. Then (c) one
-`skyfuse demo` in a namespace of its own beside the monitor, and a Zenoh subscriber
-counting the payload bytes of everything that vehicle publishes besides its sensors
-(its outputs: JSON pose, health, events; ROS 2 pose and debug series) for --seconds.
+`skyfuse demo` in a namespace of its own, and a Zenoh subscriber counting the payload
+bytes of each of its outputs (tests/py/vehicle_bandwidth.py: JSON pose, health, summary,
+events; ROS 2 pose and debug series) for --seconds; --outputs-only runs only that.
 Prints a JSON summary (and a Markdown table with --markdown).
 """
 import argparse
@@ -22,7 +22,6 @@ import os
 import statistics
 import subprocess
 import sys
-import threading
 import time
 
 from probe import CHROMIUM_ARGS, cpu_s, free_port, rss_mib
@@ -111,7 +110,7 @@ def one_round(args):
 
 def vehicle_bandwidth(args):
     """Payload bytes per second of one demo vehicle's outputs, seen over Zenoh."""
-    from zenoh_peer import open_peer
+    from vehicle_bandwidth import measure
     http, zport = free_port(), free_port()
     demo = subprocess.Popen([args.binary, "demo", "--no-browser", "--namespace", "bw", "--vehicle", "bw",
                              "--listen", f"tcp/127.0.0.1:{zport}", "--no-multicast", "--http", f"127.0.0.1:{http}"],
@@ -119,28 +118,7 @@ def vehicle_bandwidth(args):
     try:
         wait_http(http)
         time.sleep(8)
-        s = open_peer(f"tcp/127.0.0.1:{zport}")
-        counts, lock = {}, threading.Lock()
-
-        def on(sample):
-            k = str(sample.key_expr)
-            group = "/".join(k.split("/")[:3]) if k.startswith("bw/skyfuse/") else "/".join(k.split("/")[:2])
-            with lock:
-                c = counts.setdefault(group, [0, 0])
-                c[0] += 1
-                c[1] += len(sample.payload.to_bytes())
-
-        subs = [s.declare_subscriber(k, on) for k in ("bw/skyfuse/**", "bw/data_fusion/**")]
-        t0 = time.monotonic()
-        time.sleep(args.seconds)
-        dt = time.monotonic() - t0
-        for x in subs:
-            x.undeclare()
-        s.close()
-        with lock:
-            out = {k: {"msgs_per_s": round(v[0] / dt, 1), "bytes_per_s": round(v[1] / dt)} for k, v in sorted(counts.items())}
-        out["total_bytes_per_s"] = sum(v["bytes_per_s"] for v in out.values())
-        return out
+        return measure(f"tcp/127.0.0.1:{zport}", args.seconds, namespace="bw", vehicle="bw")
     finally:
         demo.terminate()
         demo.wait(10)
@@ -154,7 +132,17 @@ def main():
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--chromium", default=os.environ.get("SKYFUSE_CHROMIUM", "/usr/bin/chromium"))
     ap.add_argument("--markdown", action="store_true")
+    ap.add_argument("--outputs-only", action="store_true", help="only (c): one demo vehicle's outputs")
     args = ap.parse_args()
+    if args.outputs_only:
+        bw = vehicle_bandwidth(args)
+        print(json.dumps({"seconds": args.seconds, "one_vehicle_outputs": bw}))
+        if args.markdown:
+            print("\n| key | messages/s | bytes/s | bytes a message |\n|---|---|---|---|")
+            for k, v in list(bw["keys"].items()) + [(f"{g} (all)", v) for g, v in bw["groups"].items()]:
+                print(f"| `{k}` | {v['msgs_per_s']} | {v['bytes_per_s']} | {v['bytes_per_msg']} |")
+            print(f"| total | | **{bw['total_bytes_per_s']}** | |")
+        return 0
     rounds = [one_round(args) for _ in range(args.rounds)]
     med = {k: statistics.median(r[k] for r in rounds) for k in rounds[0]}
     bw = vehicle_bandwidth(args)
@@ -164,8 +152,9 @@ def main():
         print(f"\n| {args.vehicles} vehicles | median of {args.rounds} |\n|---|---|")
         for k, v in med.items():
             print(f"| {k} | {v} |")
-        for k, v in bw.items():
-            print(f"| {k} | {v} |")
+        for k, v in bw["groups"].items():
+            print(f"| {k} outputs | {v} |")
+        print(f"| total_bytes_per_s | {bw['total_bytes_per_s']} |")
     return 0
 
 
