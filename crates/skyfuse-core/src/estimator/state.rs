@@ -382,11 +382,10 @@ impl Core {
     /// The velocity rows of `m` (those that read the velocity states) against what
     /// the update said of them: the prediction's noise learns from them (accepted or
     /// not: a model that misses is what makes them refused). The heights that passed
-    /// the gate teach the vertical part too: a height that runs consistently beyond its σ (a range finder late by a
-    /// quarter of a second in a climb, which no configuration knew) is a prediction
-    /// the filter trusts too much, and claimed 2 cm while 0.4 m off (randomised
-    /// flight 70 of seed 1). Refused heights do not: a spurious sonar echo is the
-    /// sensor's lie, not the model's.
+    /// the gate teach the vertical part too: heights that run consistently beyond
+    /// their σ are a prediction the filter trusts too much (a real ArduCopter log,
+    /// 10-11-2014_103: 365 poses beyond 5σ without, none with). Refused heights do
+    /// not: a spurious sonar echo is the sensor's lie, not the model's.
     fn learn_prediction_noise(&mut self, m: &Measurement, out: &ekf::UpdateOutcome) {
         let (y, s) = (out.innovation(), out.innovation_var());
         let mut changed = false;
