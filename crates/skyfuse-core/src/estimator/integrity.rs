@@ -233,7 +233,7 @@ pub struct IntegrityState {
 /// What the refused measurements of a channel say the estimate may be wrong by.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RefusedStreak {
-    pub since: i64,
+    /// The latest refusal, µs.
     pub last: i64,
     /// The largest |shift| of the position, per axis, were a refused measurement
     /// exact (m), and the refused velocity shifts integrated over time (m).
@@ -277,7 +277,6 @@ impl IntegrityState {
             }
             let axes = if c == 0 { 0..2 } else { 2..3 };
             let streak = self.refused[c].get_or_insert(RefusedStreak {
-                since: t,
                 last: t,
                 shift: Vector3::zeros(),
                 drift: Vector3::zeros(),

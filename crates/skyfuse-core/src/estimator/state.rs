@@ -353,19 +353,17 @@ impl Core {
             let max_s = DELAY_BOUND_SIGMAS * ctx.cfg.delay_std_s;
             bank.each(|e| e.constrain_delays(max_s));
         }
-        if out.accepted && aiding {
-            if Channels::of(m).vertical {
-                self.last_v_aiding = Some(t);
-            }
-            self.integrity.fused(source, Channels::of(m), t);
-            if let Some(c) = self.converging.as_mut().filter(|c| c.0 == source) {
-                c.2 = true;
-            }
-        }
         if aiding {
             let ch = Channels::of(m);
             if out.accepted {
+                if ch.vertical {
+                    self.last_v_aiding = Some(t);
+                }
+                self.integrity.fused(source, ch, t);
                 self.integrity.held(ch);
+                if let Some(c) = self.converging.as_mut().filter(|c| c.0 == source) {
+                    c.2 = true;
+                }
             } else if let Some((dp, dv)) =
                 self.ekf.as_ref().and_then(|b| b.main().shift_if_exact(m))
             {
@@ -483,9 +481,8 @@ impl Core {
         // uncertain as the jump over the time refused (kept, it drove the height of a
         // randomised flight on its only range finder away again within a second of
         // each reset: 1.6 m/s off with σ 0.09).
-        let refused_s = last
-            .map_or(cfg.reject_reset_s, |l| (t - l) as f64 * 1e-6)
-            .max(cfg.reject_reset_s);
+        let rejected_s = last.map_or(cfg.reject_reset_s, |l| (t - l) as f64 * 1e-6);
+        let refused_s = rejected_s.max(cfg.reject_reset_s);
         let axes = if horizontal { 0..2 } else { 2..3 };
         for a in axes {
             let k = IDX_V + a;
@@ -506,7 +503,6 @@ impl Core {
                 }
             });
         }
-        let rejected_s = last.map_or(cfg.reject_reset_s, |l| (t - l) as f64 * 1e-6);
         self.reset_counter = self.reset_counter.wrapping_add(1);
         let until = t + (cfg.reset_converge_s * 1e6) as i64;
         self.converging = Some((source.to_string(), until, false));
