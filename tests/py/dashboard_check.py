@@ -30,7 +30,7 @@ import urllib.request
 
 CHARTS = ["flow", "pos_x", "pos_y", "pos_z", "delta_x", "delta_y", "delta_z", "map"]
 from probe import CHROMIUM_ARGS  # noqa: E402
-FAULTS = ["stop", "nan", "no-fix", "jump", "covariance", "drift", "reset", "dark-floor", "tof-range", "clear"]
+FAULTS = ["stop", "nan", "no-fix", "jump", "covariance", "drift", "reset", "dark-floor", "tof-range", "accel-offset", "clear"]
 
 
 class CheckFailed(Exception):

@@ -344,7 +344,7 @@ impl Core {
         };
         let out = bank.update(m, gate, aiding.then_some(source));
         if aiding && imu_drives {
-            self.learn_prediction_noise(m, &out);
+            self.learn_prediction_noise(m, &out, ctx);
         }
         let Some(bank) = self.ekf.as_mut() else {
             return false;
@@ -356,6 +356,7 @@ impl Core {
         if aiding {
             let ch = Channels::of(m);
             if out.accepted {
+                observe_misfit(&mut self.integrity, m, &out);
                 if ch.vertical {
                     self.last_v_aiding = Some(t);
                 }
@@ -384,7 +385,7 @@ impl Core {
     /// their σ are a prediction the filter trusts too much (a real ArduCopter log,
     /// 10-11-2014_103: 365 poses beyond 5σ without, none with). Refused heights do
     /// not: a spurious sonar echo is the sensor's lie, not the model's.
-    fn learn_prediction_noise(&mut self, m: &Measurement, out: &ekf::UpdateOutcome) {
+    fn learn_prediction_noise(&mut self, m: &Measurement, out: &ekf::UpdateOutcome, ctx: &Ctx) {
         let (y, s) = (out.innovation(), out.innovation_var());
         let mut changed = false;
         for row in 0..m.rows().min(y.len()) {
@@ -411,8 +412,12 @@ impl Core {
         }
         if changed {
             let q = self.imu.noise.per_axis();
+            let delay_var = ctx.cfg.delay_std_s * ctx.cfg.delay_std_s;
             if let Some(bank) = self.ekf.as_mut() {
-                bank.each(|e| e.vel_q_extra = q);
+                bank.each(|e| {
+                    e.vel_q_extra = q;
+                    e.doubt_under_misfit(q, delay_var);
+                });
             }
         }
     }
@@ -1220,6 +1225,26 @@ impl Core {
 /// reads) and the last prediction's acceleration (what a velocity reads). The delay
 /// is a state of every filter (added with prior 1σ `prior_std` s on first use), seen
 /// when what the source measures changes, and its uncertainty is in the innovation's.
+/// Each accepted row of `m` into its channel's misfit (see
+/// `IntegrityState::misfit_factor`): horizontal if it reads a horizontal position or
+/// velocity, vertical if it reads only the vertical ones.
+fn observe_misfit(st: &mut integrity::IntegrityState, m: &Measurement, out: &ekf::UpdateOutcome) {
+    let (y, s) = (out.innovation(), out.innovation_var());
+    for row in 0..m.rows().min(y.len()).min(s.len()) {
+        let (mut horizontal, mut vertical) = (false, false);
+        for (k, h) in m.jacobian_row(row).entries() {
+            if h == 0.0 {
+                continue;
+            }
+            horizontal |= [IDX_P, IDX_P + 1, IDX_V, IDX_V + 1].contains(&k);
+            vertical |= k == IDX_P + 2 || k == IDX_V + 2;
+        }
+        if horizontal || vertical {
+            st.observe_misfit(horizontal, y[row], s[row]);
+        }
+    }
+}
+
 fn with_delay(
     bank: &mut Bank,
     source: &str,

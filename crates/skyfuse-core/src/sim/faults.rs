@@ -29,6 +29,9 @@ pub enum FaultKind {
     DarkFloor,
     /// The flow module's ToF reads out of range.
     TofRange,
+    /// The accelerometer reads [`ACCEL_OFFSET_MPS2`] more along the body's forward
+    /// axis: a knock that shifted its mount, vibration rectified by a loose one.
+    AccelOffset,
     /// Remove every fault of this sensor.
     Clear,
 }
@@ -45,6 +48,7 @@ impl FaultKind {
             FaultKind::Reset => "reset",
             FaultKind::DarkFloor => "dark-floor",
             FaultKind::TofRange => "tof-range",
+            FaultKind::AccelOffset => "accel-offset",
             FaultKind::Clear => "clear",
         }
     }
@@ -52,6 +56,9 @@ impl FaultKind {
 
 /// Multipath jump size, m (east).
 pub const JUMP_M: f64 = 12.0;
+/// The `accel-offset` fault's error, m/s² (the largest bias the randomised flights
+/// draw).
+pub const ACCEL_OFFSET_MPS2: f64 = 1.0;
 /// Odometry drift rate of the `drift` fault, m/s.
 pub const DRIFT_MPS: f64 = 0.3;
 
@@ -210,6 +217,11 @@ pub fn apply(data: &mut SensorData, active: &[Fault], t: f64) {
                 m.rate = m
                     .rate
                     .map(|r| r * 0.1 + nalgebra::Vector2::new(k, -k) * 0.8);
+            }
+            (FaultKind::AccelOffset, SensorData::Imu(m)) => {
+                if let Some(a) = m.accel.as_mut() {
+                    a.x += ACCEL_OFFSET_MPS2;
+                }
             }
             (FaultKind::TofRange, SensorData::Flow(m)) => {
                 if let Some(tof) = m.tof.as_mut() {

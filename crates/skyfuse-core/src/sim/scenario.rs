@@ -108,7 +108,7 @@ fn slow_flow_outdoors(scale: f64) -> Hardware {
 /// SITL): the IMU at 120 Hz as PX4 streams HIGHRES_IMU, and the GNSS 0.25 s later than
 /// the configuration assumes, so that its fixes are refused in the hard steps while
 /// nothing else holds the position.
-fn gnss_square() -> (Profile, Vec<StreamSpec>) {
+fn gnss_square(late_s: f64) -> (Profile, Vec<StreamSpec>) {
     let plan = super::plan::FlightPlan {
         kind: super::plan::PlanKind::Square,
         duration_s: 150.0,
@@ -128,7 +128,7 @@ fn gnss_square() -> (Profile, Vec<StreamSpec>) {
                 ..s
             },
             "gps" => StreamSpec {
-                delay_s: s.delay_s + GNSS_SQUARE_LATE_S,
+                delay_s: s.delay_s + late_s,
                 ..s
             },
             _ => s,
@@ -139,6 +139,19 @@ fn gnss_square() -> (Profile, Vec<StreamSpec>) {
 
 /// How much later than assumed the `gps-square` GNSS fixes come, s.
 pub const GNSS_SQUARE_LATE_S: f64 = 0.25;
+/// The square's first move (its first hard step): take-off at 4 s, 5 s of climb to
+/// 5 m, the first corner's hold.
+pub const GNSS_SQUARE_FIRST_MOVE_S: f64 = super::plan::TAKEOFF_S + 5.0 + super::plan::SQUARE_HOLD_S;
+
+/// `gps-square-lockout`'s receiver: as precise as SITL's (PX4 SIH's fixes are
+/// centimetres apart), so the gate is as tight as it was in the flights that locked
+/// the GNSS out.
+fn precise_gnss() -> Hardware {
+    Hardware {
+        gnss_std_m: (0.05, 0.1),
+        ..Hardware::default()
+    }
+}
 
 fn streams_without(ids: &[&str]) -> Vec<StreamSpec> {
     DEMO_STREAMS
@@ -246,6 +259,10 @@ pub const NAMES: &[(&str, &str)] = &[
         "flow-laps-slow",
         "flow-laps with the flow reading 5 % slow and no IMU: nothing sees the scale",
     ),
+    (
+        "gps-square-lockout",
+        "PX4's offboard square on a GNSS as precise as SITL's (5 cm) + IMU + attitude; from the first hard step the accelerometer reads 1 m/s² off: the only position source refused while the vehicle accelerates, reset to rather than locked out",
+    ),
 ];
 
 /// Look up a scenario by name.
@@ -256,6 +273,7 @@ pub fn scenario(name: &str) -> Option<Scenario> {
         "sonar-climb" | "sonar-climb-imu" | "sonar-climb-baro" => px4flow_sonar(20.0),
         "flow-laps" => slow_flow_outdoors(1.05),
         "flow-laps-imu" | "flow-laps-slow" => slow_flow_outdoors(0.95),
+        "gps-square-lockout" => precise_gnss(),
         _ => Hardware::default(),
     };
     let (profile, streams, faults) = match name {
@@ -278,8 +296,18 @@ pub fn scenario(name: &str) -> Option<Scenario> {
         "flow-laps-imu" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, true), vec![]),
         "flow-laps-slow" => (Profile::Laps, flow_vehicle(9.5, 20.0, 57.0, false), vec![]),
         "gps-square" => {
-            let (profile, streams) = gnss_square();
+            let (profile, streams) = gnss_square(GNSS_SQUARE_LATE_S);
             (profile, streams, vec![])
+        }
+        "gps-square-lockout" => {
+            let (profile, streams) = gnss_square(0.0);
+            let offset = fault(
+                "imu",
+                FaultKind::AccelOffset,
+                GNSS_SQUARE_FIRST_MOVE_S,
+                f64::INFINITY,
+            );
+            (profile, streams, vec![offset])
         }
         "demo" => (Profile::Demo, all, vec![]),
         "hover" => (Profile::Hover, all, vec![]),
