@@ -262,8 +262,14 @@ impl Ekf {
     /// 0.1 s, and every later move was sent 0.5 m ahead with σ 4 cm. So the bias is
     /// never surer than what the model misses in [`BIAS_MISFIT_S`], and while the model
     /// is plainly wrong (`q` towards [`Q_MODEL_WRONG`]) each delay is as open as its prior:
-    /// what was learnt under a wrong model is learnt again.
-    pub fn doubt_under_misfit(&mut self, q: Vector3<f64>, delay_prior_var: f64) {
+    /// what was learnt under a wrong model is learnt again. A height source's delay
+    /// (`vertical`) by the vertical noise, any other's by the horizontal.
+    pub fn doubt_under_misfit(
+        &mut self,
+        q: Vector3<f64>,
+        delay_prior_var: f64,
+        vertical: impl Fn(&str) -> bool,
+    ) {
         // The horizontal axes only: the vertical bias is seen against heights whose
         // own errors (a barometer's drift, a sonar's echoes) teach the vertical
         // noise, and floored by it the bias followed them (a real log, 11-2-2015_112:
@@ -275,9 +281,10 @@ impl Ekf {
                 self.p[(k, k)] = floor;
             }
         }
-        let wrong = (q.x.max(q.y) / Q_MODEL_WRONG).min(1.0);
-        for &(_, k) in &self.delays {
-            let floor = delay_prior_var * wrong;
+        for (source, k) in &self.delays {
+            let q = if vertical(source) { q.z } else { q.x.max(q.y) };
+            let floor = delay_prior_var * (q / Q_MODEL_WRONG).min(1.0);
+            let k = *k;
             if self.p[(k, k)] < floor {
                 self.p[(k, k)] = floor;
             }

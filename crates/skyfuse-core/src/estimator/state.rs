@@ -413,10 +413,16 @@ impl Core {
         if changed {
             let q = self.imu.noise.per_axis();
             let delay_var = ctx.cfg.delay_std_s * ctx.cfg.delay_std_s;
+            let stats = &self.stats;
+            let vertical = |s: &str| {
+                stats
+                    .get(s)
+                    .is_some_and(|st| matches!(st.kind, "baro" | "range"))
+            };
             if let Some(bank) = self.ekf.as_mut() {
                 bank.each(|e| {
                     e.vel_q_extra = q;
-                    e.doubt_under_misfit(q, delay_var);
+                    e.doubt_under_misfit(q, delay_var, vertical);
                 });
             }
         }
