@@ -263,7 +263,11 @@ impl Ekf {
     /// never surer than what the model misses in [`BIAS_MISFIT_S`], and while the model
     /// is plainly wrong (`q` towards [`Q_MODEL_WRONG`]) each delay is as open as its prior:
     /// what was learnt under a wrong model is learnt again. A height source's delay
-    /// (`vertical`) by the vertical noise, any other's by the horizontal.
+    /// (`vertical`) is left as it is: a barometer's or a range finder's is seen only
+    /// against the vertical, whose noise their own errors teach, and reopened by it on
+    /// randomised draw 740 (hover; range 297 ms and baro 272 ms late) the two wandered,
+    /// the barometer was excluded 40 m off and 18 011 valid poses broke their
+    /// protection level (none without).
     pub fn doubt_under_misfit(
         &mut self,
         q: Vector3<f64>,
@@ -282,8 +286,10 @@ impl Ekf {
             }
         }
         for (source, k) in &self.delays {
-            let q = if vertical(source) { q.z } else { q.x.max(q.y) };
-            let floor = delay_prior_var * (q / Q_MODEL_WRONG).min(1.0);
+            if vertical(source) {
+                continue;
+            }
+            let floor = delay_prior_var * (q.x.max(q.y) / Q_MODEL_WRONG).min(1.0);
             let k = *k;
             if self.p[(k, k)] < floor {
                 self.p[(k, k)] = floor;
