@@ -443,7 +443,7 @@ fn the_only_position_source_refused_while_accelerating_is_reset_to_not_locked_ou
             .filter_map(|e| e["t"].as_f64())
             .collect()
     };
-    let step_s = skyfuse_core::sim::scenario::GNSS_SQUARE_FIRST_MOVE_S;
+    let step_s = skyfuse_core::sim::scenario::gnss_square_first_move_s();
     let (out, s) = run_named("gps-square-lockout");
     let (fused, best) = s.fused_and_best_source();
     let fused = fused.expect("fused score");

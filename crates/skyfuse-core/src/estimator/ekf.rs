@@ -285,12 +285,11 @@ impl Ekf {
                 self.p[(k, k)] = floor;
             }
         }
-        for (source, k) in &self.delays {
+        let floor = delay_prior_var * (q.x.max(q.y) / Q_MODEL_WRONG).min(1.0);
+        for &(ref source, k) in &self.delays {
             if vertical(source) {
                 continue;
             }
-            let floor = delay_prior_var * (q.x.max(q.y) / Q_MODEL_WRONG).min(1.0);
-            let k = *k;
             if self.p[(k, k)] < floor {
                 self.p[(k, k)] = floor;
             }

@@ -389,17 +389,8 @@ impl Core {
         let (y, s) = (out.innovation(), out.innovation_var());
         let mut changed = false;
         for row in 0..m.rows().min(y.len()) {
-            let (mut reads, mut height, mut horizontal_position) = ([false; 3], false, false);
-            for (k, h) in m.jacobian_row(row).entries() {
-                if h == 0.0 {
-                    continue;
-                }
-                if (IDX_V..IDX_V + 3).contains(&k) {
-                    reads[k - IDX_V] = true;
-                }
-                height |= k == IDX_P + 2;
-                horizontal_position |= k == IDX_P || k == IDX_P + 1;
-            }
+            let (pos, reads) = row_reads(m, row);
+            let (height, horizontal_position) = (pos[2], pos[0] || pos[1]);
             let vertical = if reads.iter().any(|&r| r) {
                 reads[2] && !reads[0] && !reads[1]
             } else if height && !horizontal_position && out.accepted {
@@ -1226,31 +1217,43 @@ impl Core {
     }
 }
 
-/// `m` from `source` with the source's delay τ in it: it measured the state of τ
-/// ago, `h(x(t − τ)) ≈ h(x) − τ·dh/dt`, dh/dt from the velocity (what a position
-/// reads) and the last prediction's acceleration (what a velocity reads). The delay
-/// is a state of every filter (added with prior 1σ `prior_std` s on first use), seen
-/// when what the source measures changes, and its uncertainty is in the innovation's.
+/// Which position and velocity axes (east, north, up) one row of `m` reads (a
+/// non-zero Jacobian entry).
+fn row_reads(m: &Measurement, row: usize) -> ([bool; 3], [bool; 3]) {
+    let (mut pos, mut vel) = ([false; 3], [false; 3]);
+    for (k, h) in m.jacobian_row(row).entries() {
+        if h == 0.0 {
+            continue;
+        }
+        if (IDX_P..IDX_P + 3).contains(&k) {
+            pos[k - IDX_P] = true;
+        }
+        if (IDX_V..IDX_V + 3).contains(&k) {
+            vel[k - IDX_V] = true;
+        }
+    }
+    (pos, vel)
+}
+
 /// Each accepted row of `m` into its channel's misfit (see
 /// `IntegrityState::misfit_factor`): horizontal if it reads a horizontal position or
 /// velocity, vertical if it reads only the vertical ones.
-fn observe_misfit(st: &mut integrity::IntegrityState, m: &Measurement, out: &ekf::UpdateOutcome) {
+fn observe_misfit(st: &mut IntegrityState, m: &Measurement, out: &UpdateOutcome) {
     let (y, s) = (out.innovation(), out.innovation_var());
     for row in 0..m.rows().min(y.len()).min(s.len()) {
-        let (mut horizontal, mut vertical) = (false, false);
-        for (k, h) in m.jacobian_row(row).entries() {
-            if h == 0.0 {
-                continue;
-            }
-            horizontal |= [IDX_P, IDX_P + 1, IDX_V, IDX_V + 1].contains(&k);
-            vertical |= k == IDX_P + 2 || k == IDX_V + 2;
-        }
-        if horizontal || vertical {
+        let (pos, vel) = row_reads(m, row);
+        let horizontal = pos[0] || pos[1] || vel[0] || vel[1];
+        if horizontal || pos[2] || vel[2] {
             st.observe_misfit(horizontal, y[row], s[row]);
         }
     }
 }
 
+/// `m` from `source` with the source's delay τ in it: it measured the state of τ
+/// ago, `h(x(t − τ)) ≈ h(x) − τ·dh/dt`, dh/dt from the velocity (what a position
+/// reads) and the last prediction's acceleration (what a velocity reads). The delay
+/// is a state of every filter (added with prior 1σ `prior_std` s on first use), seen
+/// when what the source measures changes, and its uncertainty is in the innovation's.
 fn with_delay(
     bank: &mut Bank,
     source: &str,

@@ -88,6 +88,11 @@ impl FlightPlan {
         (self.height_m / CLIMB_RATE).max(3.0)
     }
 
+    /// [`PlanKind::Square`]: when its first move (its first hard step) starts, s.
+    pub fn square_first_move_s(&self) -> f64 {
+        self.cruise().0 + SQUARE_HOLD_S
+    }
+
     /// Take-off ends, landing starts.
     fn cruise(&self) -> (f64, f64) {
         let c = self.climb_s();

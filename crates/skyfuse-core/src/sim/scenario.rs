@@ -109,16 +109,7 @@ fn slow_flow_outdoors(scale: f64) -> Hardware {
 /// the configuration assumes, so that its fixes are refused in the hard steps while
 /// nothing else holds the position.
 fn gnss_square(late_s: f64) -> (Profile, Vec<StreamSpec>) {
-    let plan = super::plan::FlightPlan {
-        kind: super::plan::PlanKind::Square,
-        duration_s: 150.0,
-        height_m: 5.0,
-        speed_mps: 5.0,
-        size_m: 10.0,
-        climb_to_m: 5.0,
-        yaw_swing_rad: 0.0,
-        yaw0_rad: 0.0,
-    };
+    let plan = square_plan();
     let streams = DEMO_STREAMS
         .iter()
         .filter(|s| matches!(s.input_id, "imu" | "attitude" | "gps"))
@@ -139,9 +130,25 @@ fn gnss_square(late_s: f64) -> (Profile, Vec<StreamSpec>) {
 
 /// How much later than assumed the `gps-square` GNSS fixes come, s.
 pub const GNSS_SQUARE_LATE_S: f64 = 0.25;
-/// The square's first move (its first hard step): take-off at 4 s, 5 s of climb to
-/// 5 m, the first corner's hold.
-pub const GNSS_SQUARE_FIRST_MOVE_S: f64 = super::plan::TAKEOFF_S + 5.0 + super::plan::SQUARE_HOLD_S;
+
+/// The square the `gps-square` scenarios fly: 10 m, 5 m/s moves, at 5 m.
+fn square_plan() -> super::plan::FlightPlan {
+    super::plan::FlightPlan {
+        kind: super::plan::PlanKind::Square,
+        duration_s: 150.0,
+        height_m: 5.0,
+        speed_mps: 5.0,
+        size_m: 10.0,
+        climb_to_m: 5.0,
+        yaw_swing_rad: 0.0,
+        yaw0_rad: 0.0,
+    }
+}
+
+/// When the `gps-square` scenarios' first move (their first hard step) starts, s.
+pub fn gnss_square_first_move_s() -> f64 {
+    square_plan().square_first_move_s()
+}
 
 /// `gps-square-lockout`'s receiver: as precise as SITL's (PX4 SIH's fixes are
 /// centimetres apart), so the gate is as tight as it was in the flights that locked
@@ -304,7 +311,7 @@ pub fn scenario(name: &str) -> Option<Scenario> {
             let offset = fault(
                 "imu",
                 FaultKind::AccelOffset,
-                GNSS_SQUARE_FIRST_MOVE_S,
+                gnss_square_first_move_s(),
                 f64::INFINITY,
             );
             (profile, streams, vec![offset])
@@ -397,6 +404,8 @@ mod tests {
             assert!(!s.streams.is_empty());
         }
         assert!(scenario("moon-landing").is_none());
+        // Take-off at 4 s, 5 s of climb to 5 m, the first corner's 4 s hold.
+        assert_eq!(gnss_square_first_move_s(), 13.0);
         assert!(scenario("indoor")
             .expect("indoor")
             .streams
