@@ -26,6 +26,8 @@ use thiserror::Error;
 
 /// Fused poses are written at most this often (sample time), µs: 50 Hz.
 pub const FUSED_OUTPUT_INTERVAL_US: i64 = 20_000;
+/// How often the main filter's state is written to `filter_state.jsonl`, µs.
+const FILTER_STATE_INTERVAL_US: i64 = 1_000_000;
 
 #[derive(Debug, Error)]
 pub enum OfflineError {
@@ -88,6 +90,10 @@ pub struct Recorder {
     /// Plain flow dead reckoning of each flow source (`<source>_dr`), the baseline.
     pub dead_reckoning: crate::dead_reckoning::FlowDeadReckoning,
     pub events: Vec<String>,
+    /// The main filter's state and 1σ once a second, one JSON object per line
+    /// (`filter_state.jsonl`: for a developer tracing one flight).
+    pub filter_states: Vec<String>,
+    last_state_us: Option<i64>,
     last_fused_us: Option<i64>,
     gnss_origin: Option<LocalEnu>,
     /// ENU origins of geodetic estimates, per source.
@@ -233,6 +239,20 @@ impl Recorder {
             return;
         };
         if self
+            .last_state_us
+            .is_none_or(|l| time_us >= l + FILTER_STATE_INTERVAL_US)
+        {
+            if let Some((x, var, names)) = est.filter_state() {
+                self.last_state_us = Some(time_us);
+                let mut state = serde_json::Map::new();
+                for ((name, x), var) in names.iter().zip(&x).zip(&var) {
+                    state.insert(name.clone(), serde_json::json!([x, var.max(0.0).sqrt()]));
+                }
+                let line = serde_json::json!({"t": self.secs(time_us), "state": state});
+                self.filter_states.push(line.to_string());
+            }
+        }
+        if self
             .last_fused_us
             .is_some_and(|l| time_us < l + FUSED_OUTPUT_INTERVAL_US)
         {
@@ -334,6 +354,21 @@ fn availability(validity: &[(f64, bool)], airborne: &[(f64, bool)]) -> Availabil
             air_gap = 0.0;
         }
     }
+    // Airborne with no pose at all (before the filter started, or after it stopped)
+    // counts as invalid: a flight whose filter starts only at its landing is not valid
+    // throughout (randomised draw 189 read "100 %" over its last 4 s of 155).
+    let end = validity.last().map_or(0.0, |v| v.0);
+    let first_pose = validity.first().map_or(end, |v| v.0);
+    let mut uncovered = 0.0;
+    for (i, &(ta, a)) in airborne.iter().enumerate() {
+        if a {
+            let next = airborne.get(i + 1).map_or(end, |n| n.0).min(end.max(ta));
+            let before = (next.min(first_pose) - ta).max(0.0);
+            air_longest = air_longest.max(before);
+            uncovered += before;
+        }
+    }
+    air += uncovered;
     let known = !airborne.is_empty();
     Availability {
         span_s: span,
@@ -696,6 +731,9 @@ fn finish(
     if let Reference::Truth(truth) | Reference::TruthInOwnFrame(truth) = &reference {
         let t = truth_at(*truth, &rec.fused.t);
         files.push(write_file(out, "truth.tum", &tum("truth", &t)?)?);
+        // At every pose, valid or not, beside `fused_all.tum`.
+        let t = truth_at(*truth, &rec.fused_all.t);
+        files.push(write_file(out, "truth_all.tum", &tum("truth_all", &t)?)?);
     }
     files.push(write_file(out, "fused.tum", &tum("fused", &rec.fused)?)?);
     files.push(write_file(
@@ -714,6 +752,11 @@ fn finish(
         events.push('\n');
     }
     files.push(write_file(out, "events.jsonl", &events)?);
+    let mut states = rec.filter_states.join("\n");
+    if !states.is_empty() {
+        states.push('\n');
+    }
+    files.push(write_file(out, "filter_state.jsonl", &states)?);
 
     let (scores, consistency) = score(rec, &reference, window);
     files.push("summary.json".into());
@@ -1536,6 +1579,20 @@ mod reference_tests {
 
     /// A GNSS track has no orientation: registering a north-facing estimate on it at
     /// the first pose moves the estimate and does not turn it by its heading.
+    #[test]
+    fn airborne_before_the_first_pose_counts_as_invalid() {
+        // In the air from 1 s; the filter's first pose at 8 s, valid to the end at 10 s.
+        let validity: Vec<(f64, bool)> = (0..=20).map(|k| (8.0 + k as f64 * 0.1, true)).collect();
+        let a = availability(&validity, &[(0.0, false), (1.0, true)]);
+        let f = a.airborne_valid_fraction.unwrap_or(f64::NAN);
+        assert!((f - 2.0 / 9.0).abs() < 1e-9, "{f}");
+        assert_eq!(a.airborne_s, Some(9.0));
+        assert_eq!(a.airborne_longest_invalid_s, Some(7.0));
+        // Airborne only after the first pose: nothing added.
+        let b = availability(&validity, &[(0.0, false), (9.0, true)]);
+        assert_eq!(b.airborne_valid_fraction, Some(1.0));
+    }
+
     #[test]
     fn a_position_only_reference_registers_without_turning() {
         let north = UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2);
