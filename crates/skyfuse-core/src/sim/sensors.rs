@@ -285,6 +285,19 @@ fn n(rng: &mut SmallRng, sigma: f64) -> f64 {
         .unwrap_or(0.0)
 }
 
+/// Where a visual odometry's frame is when it (re)starts at `s`: at the body, turned by
+/// its heading alone. A T265, VINS or OpenVINS levels its frame with gravity from its
+/// own IMU; only the heading is arbitrary. (Taking the whole attitude tilted a frame
+/// restarted mid-flight by the vehicle's 5-15° of bank, so every metre flown read as
+/// centimetres of climb: no real odometry does that.)
+fn odometry_frame_at(s: &TruthState) -> (Vector3<f64>, UnitQuaternion<f64>) {
+    let yaw = crate::estimator::attitude::yaw_of(&s.attitude);
+    (
+        s.position,
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+    )
+}
+
 fn n3(rng: &mut SmallRng, sigma: f64) -> Vector3<f64> {
     Vector3::new(n(rng, sigma), n(rng, sigma), n(rng, sigma))
 }
@@ -306,7 +319,7 @@ impl SensorModels {
             accel_bias,
             t265_drift: Vector3::zeros(),
             t265_last_t: None,
-            t265_origin: (start.position, start.attitude),
+            t265_origin: odometry_frame_at(&start),
             gps_bias: Vector3::zeros(),
             gps_last_t: None,
             last_fix: (HOME_LAT, HOME_LON, HOME_ALT),
@@ -425,8 +438,7 @@ impl SensorModels {
                 }
                 FaultKind::Reset => {
                     // Tracking lost and restarted: the odometry frame is where it restarted.
-                    let r = truth_of(self.profile, f.start_s);
-                    (p0, q0) = (r.position, r.attitude);
+                    (p0, q0) = odometry_frame_at(&truth_of(self.profile, f.start_s));
                     fault_drift = Vector3::zeros();
                     resets = resets.wrapping_add(1);
                 }
@@ -438,8 +450,7 @@ impl SensorModels {
                 // A camera that stopped (USB reset, crash) restarts its frame where it
                 // comes back.
                 FaultKind::Stop if s.t >= f.end_s => {
-                    let r = truth_of(self.profile, f.end_s);
-                    (p0, q0) = (r.position, r.attitude);
+                    (p0, q0) = odometry_frame_at(&truth_of(self.profile, f.end_s));
                     fault_drift = Vector3::zeros();
                     resets = resets.wrapping_add(1);
                 }
@@ -532,11 +543,14 @@ impl SensorModels {
             quality = 1; // MAVLink DISTANCE_SENSOR: 1 = invalid signal
             max
         };
-        // MAVLink carries centimetres: quantise as the wire does.
+        // MAVLink carries centimetres, the limits too: quantise as the wire does (the
+        // limits unquantised, a reading clamped at a minimum of 0.296 m went out as
+        // 0.30 m, above its minimum: not on the ground).
+        let cm = |x: f64| (x * 100.0).round() / 100.0;
         Range {
-            distance_m: (d * 100.0).round() / 100.0,
-            min_m: Some(min),
-            max_m: Some(max),
+            distance_m: cm(d),
+            min_m: Some(cm(min)),
+            max_m: Some(cm(max)),
             signal_quality: Some(quality),
             variance: None,
             orientation: Some(25),
@@ -671,6 +685,53 @@ mod tests {
         }
         let mean = err / count;
         assert!(mean.norm() < 0.02, "mean velocity error {mean}");
+    }
+
+    #[test]
+    fn a_camera_restarted_in_a_bank_keeps_its_frame_level() {
+        // Find a moment of the demo flight banked by more than 5°.
+        let tilt = |s: &TruthState| (s.attitude * Vector3::z()).z.acos().to_degrees();
+        let Some(start_s) = (200..1400)
+            .map(|k| k as f64 * 0.1)
+            .find(|&t| tilt(&truth(t)) > 5.0)
+        else {
+            panic!("the demo flight never banks by 5°");
+        };
+        let fault = Fault {
+            sensor: "t265".into(),
+            kind: FaultKind::Reset,
+            start_s,
+            end_s: start_s + 0.1,
+        };
+        let mut m = SensorModels::new(5);
+        m.hardware.vio_drift_rw = 0.0;
+        let (a, b) = (truth(start_s + 1.0), truth(start_s + 6.0));
+        let read =
+            |m: &mut SensorModels, s: &TruthState| m.t265_with(s, std::slice::from_ref(&fault));
+        let (oa, ob) = (read(&mut m, &a), read(&mut m, &b));
+        // Level: the odometry's climb is the vehicle's, however far it flew meanwhile.
+        let climb = (ob.position.z - oa.position.z) - (b.position.z - a.position.z);
+        let flown = (b.position - a.position).xy().norm();
+        assert!(flown > 3.0, "flew {flown} m");
+        assert!(climb.abs() < 0.03, "climb error {climb} m over {flown} m");
+        assert_eq!(ob.reset_counter, Some(1));
+    }
+
+    #[test]
+    fn a_range_finder_on_its_gear_reads_at_or_below_the_minimum_it_sends() {
+        // Centimetres on the wire, the limits too: a minimum of 0.296 m clamps the
+        // reading to 0.30 m, which must not read as above a minimum sent as 0.296.
+        let mut m = SensorModels::new(2);
+        for min in [0.18, 0.296, 0.3049] {
+            m.hardware.range_min_m = min;
+            let r = m.range(&truth(0.0));
+            let sent_min = r.min_m.unwrap_or(f64::NAN);
+            assert!(
+                r.distance_m <= sent_min,
+                "{} > {sent_min} (min {min})",
+                r.distance_m
+            );
+        }
     }
 
     #[test]
