@@ -243,14 +243,16 @@ impl Ekf {
             .map(|&(_, i)| i)
     }
 
-    /// Holds every delay state within ±`max_s` (EKF2's constrainStates for its biases):
-    /// a delay is seen through what the source measures changing, and a model error of
-    /// the same shape (a vertical velocity the IMU got wrong, against a barometer) is
-    /// explained as a delay just as well; unbounded, a barometer's ran to 0.8 s on a
-    /// real log and the velocity error it hid grew on.
-    pub fn constrain_delays(&mut self, max_s: f64) {
-        for &(_, i) in &self.delays {
-            self.x[i] = self.x[i].clamp(-max_s, max_s);
+    /// Holds every delay state within ±`max_s` (EKF2's constrainStates for its biases),
+    /// and at or above its source's `floor` (s; none: −`max_s`), what it physically
+    /// cannot be below: a delay is seen through what the source measures changing,
+    /// and a model error of the same shape (a vertical velocity the IMU got wrong,
+    /// against a barometer) is explained as a delay just as well; unbounded, a
+    /// barometer's ran to 0.8 s on a real log and the velocity error it hid grew on.
+    pub fn constrain_delays(&mut self, max_s: f64, floor: impl Fn(&str) -> Option<f64>) {
+        for (source, i) in &self.delays {
+            let lo = floor(source).map_or(-max_s, |f| f.max(-max_s)).min(max_s);
+            self.x[*i] = self.x[*i].clamp(lo, max_s);
         }
     }
 
@@ -1151,6 +1153,34 @@ mod tests {
         assert!(all_finite(&long));
         long[577] = f64::NAN;
         assert!(!all_finite(&long));
+    }
+
+    /// A delay is held within ±max, and never below its source's floor (a sample is not
+    /// measured after it arrived): the camera's −0.3 s is its −6 ms latency, the flow's
+    /// 0.5 s the bound, and a source without a floor keeps what is within the bounds.
+    #[test]
+    fn a_delay_is_held_above_its_floor_and_within_its_bound() {
+        let mut ekf = Ekf::new(
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::repeat(1.0),
+            Vector3::repeat(1.0),
+            0.0,
+        );
+        let (cam, flow, gnss) = (
+            ekf.delay_state("t265", 0.01),
+            ekf.delay_state("flow", 0.01),
+            ekf.delay_state("gps", 0.01),
+        );
+        ekf.x[cam] = -0.3;
+        ekf.x[flow] = 0.5;
+        ekf.x[gnss] = -0.3;
+        ekf.constrain_delays(0.4, |s| match s {
+            "t265" => Some(-0.006),
+            "flow" => Some(-0.01),
+            _ => None,
+        });
+        assert_eq!([ekf.x[cam], ekf.x[flow], ekf.x[gnss]], [-0.006, 0.4, -0.3]);
     }
 
     /// A terrain reset moves the ground, not what is known of the vehicle's height: a

@@ -257,13 +257,20 @@ impl Estimator {
                 .get_or_insert_with(&source, || (0, i64::MIN))
                 .0 = to;
             let adjust = |b: &mut bank::Bank| b.each(|e| e.x[idx] -= moved_s);
+            let lower_floor = |c: &mut Core| {
+                if let Some(f) = c.delay_floor_s.get_mut(&source) {
+                    *f -= moved_s;
+                }
+            };
             if let Some(b) = self.core.ekf.as_mut() {
                 adjust(b);
             }
+            lower_floor(&mut self.core);
             for (_, snap) in self.snaps.iter_mut() {
                 if let Some(b) = snap.ekf.as_mut().filter(|b| b.n() > idx) {
                     adjust(b);
                 }
+                lower_floor(snap);
             }
         }
     }
@@ -320,6 +327,13 @@ impl Estimator {
         }
         let mapped = self.clocks.host_time(&self.cfg, s);
         let mut t = mapped;
+        if kind != SensorKind::Imu && self.core.delay_floor_s.get(src).is_none() {
+            let floor = -(self.cfg.latency_us(src, kind) as f64) * 1e-6;
+            self.core.delay_floor_s.put(src, floor);
+            for (_, snap) in self.snaps.iter_mut() {
+                snap.delay_floor_s.put(src, floor);
+            }
+        }
         if kind != SensorKind::Imu {
             let (shift, newest) = self.delay_shift.get_or_insert_with(src, || (0, i64::MIN));
             t -= *shift;
