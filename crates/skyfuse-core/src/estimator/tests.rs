@@ -4,7 +4,7 @@ use super::ekf::GRAVITY;
 use super::*;
 use crate::geo::LocalEnu;
 use crate::sample::{
-    Attitude, GnssFix, Imu, LandedState, Odometry, OpticalFlow, Range, VehicleState,
+    Attitude, GnssFix, Imu, LandedState, Odometry, OpticalFlow, Range, Tof, VehicleState,
 };
 use crate::sim::sensors::DEMO_STREAMS;
 use crate::sim::truth::{truth, TruthState};
@@ -986,6 +986,60 @@ fn a_vehicle_carried_while_disarmed_is_not_held_on_the_ground() {
         "carried 4 m, the track says {}",
         p.position
     );
+}
+
+#[test]
+fn a_flow_modules_own_tof_at_its_minimum_starts_the_filter_on_the_ground() {
+    // A flow module with its own ToF and nothing else below: on its gear the lens is
+    // too close to focus (quality 20) and the ToF reads 2 cm, under its 5 cm minimum.
+    // That is the ground, as a range finder at its minimum is: the filter starts there,
+    // at rest, before the take-off, not in the climb once the flow sees texture.
+    let mut est = Estimator::new(flow_range_cfg());
+    let mut started = None;
+    for k in 0..600i64 {
+        let t = 1_000_000 + k * 5_000;
+        let mut batch = vec![sample_at("imu", t, still_imu())];
+        if k % 4 == 0 {
+            batch.push(sample_at(
+                "attitude",
+                t,
+                SensorData::Attitude(Attitude {
+                    orientation: UnitQuaternion::identity(),
+                    rates: None,
+                }),
+            ));
+            batch.push(sample_at(
+                "flow",
+                t,
+                SensorData::Flow(OpticalFlow {
+                    rate: Some(Vector2::zeros()),
+                    gyro: Some(Vector3::zeros()),
+                    velocity: None,
+                    integration_s: Some(0.02),
+                    quality: 20,
+                    status: Some(0),
+                    tof: Some(Tof {
+                        distance_m: 0.02,
+                        strength: None,
+                        precision: None,
+                        status: None,
+                    }),
+                }),
+            ));
+        }
+        for e in batch.iter().flat_map(|s| est.process(s)) {
+            if e.kind() == "initialised" {
+                started = Some((e.time_us, e.source.clone()));
+            }
+        }
+    }
+    let Some((at, source)) = started else {
+        panic!("never started: no ground evidence from the ToF");
+    };
+    assert_eq!(source.as_deref(), Some("ground"));
+    assert!(at < 3_000_000, "started at {at} µs");
+    let p = est.pose().expect("a pose");
+    assert!(p.valid && p.velocity.norm() < 0.05, "{p:?}");
 }
 
 #[test]
