@@ -1160,13 +1160,7 @@ mod tests {
     /// 0.5 s the bound, and a source without a floor keeps what is within the bounds.
     #[test]
     fn a_delay_is_held_above_its_floor_and_within_its_bound() {
-        let mut ekf = Ekf::new(
-            Vector3::zeros(),
-            Vector3::zeros(),
-            Vector3::repeat(1.0),
-            Vector3::repeat(1.0),
-            0.0,
-        );
+        let mut ekf = unit_filter();
         let (cam, flow, gnss) = (
             ekf.delay_state("t265", 0.01),
             ekf.delay_state("flow", 0.01),
@@ -1256,16 +1250,21 @@ mod tests {
         assert!((both.x[c] - pc / s * 2.0).abs() < 1e-12);
     }
 
-    /// A filter with state `x` and covariance `p` over the core states and one odometry
-    /// block.
-    fn with_odometry_block(x: DVector<f64>, p: &DMatrix<f64>) -> Ekf {
-        let mut ekf = Ekf::new(
+    /// At rest at the origin, unit position and velocity variances, no bias.
+    fn unit_filter() -> Ekf {
+        Ekf::new(
             Vector3::zeros(),
             Vector3::zeros(),
             Vector3::repeat(1.0),
             Vector3::repeat(1.0),
             0.0,
-        );
+        )
+    }
+
+    /// A filter with state `x` and covariance `p` over the core states and one odometry
+    /// block.
+    fn with_odometry_block(x: DVector<f64>, p: &DMatrix<f64>) -> Ekf {
+        let mut ekf = unit_filter();
         ekf.x = x;
         ekf.p = p.clone();
         ekf.blocks.push(("vo".into(), CORE_STATES));

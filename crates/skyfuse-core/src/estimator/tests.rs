@@ -988,6 +988,25 @@ fn a_vehicle_carried_while_disarmed_is_not_held_on_the_ground() {
     );
 }
 
+/// Tick `k` of a vehicle standing level on its gear from 1 s: a still IMU at 200 Hz and,
+/// every fourth tick, the attitude and `sensor`'s sample.
+fn still_on_gear(k: i64, sensor: (&str, &SensorData)) -> Vec<Sample> {
+    let t = 1_000_000 + k * 5_000;
+    let mut batch = vec![sample_at("imu", t, still_imu())];
+    if k % 4 == 0 {
+        batch.push(sample_at(sensor.0, t, sensor.1.clone()));
+        batch.push(sample_at(
+            "attitude",
+            t,
+            SensorData::Attitude(Attitude {
+                orientation: UnitQuaternion::identity(),
+                rates: None,
+            }),
+        ));
+    }
+    batch
+}
+
 #[test]
 fn a_flow_modules_own_tof_at_its_minimum_starts_the_filter_on_the_ground() {
     // A flow module with its own ToF and nothing else below: on its gear the lens is
@@ -996,37 +1015,22 @@ fn a_flow_modules_own_tof_at_its_minimum_starts_the_filter_on_the_ground() {
     // at rest, before the take-off, not in the climb once the flow sees texture.
     let mut est = Estimator::new(flow_range_cfg());
     let mut started = None;
+    let flow = SensorData::Flow(OpticalFlow {
+        rate: Some(Vector2::zeros()),
+        gyro: Some(Vector3::zeros()),
+        velocity: None,
+        integration_s: Some(0.02),
+        quality: 20,
+        status: Some(0),
+        tof: Some(Tof {
+            distance_m: 0.02,
+            strength: None,
+            precision: None,
+            status: None,
+        }),
+    });
     for k in 0..600i64 {
-        let t = 1_000_000 + k * 5_000;
-        let mut batch = vec![sample_at("imu", t, still_imu())];
-        if k % 4 == 0 {
-            batch.push(sample_at(
-                "attitude",
-                t,
-                SensorData::Attitude(Attitude {
-                    orientation: UnitQuaternion::identity(),
-                    rates: None,
-                }),
-            ));
-            batch.push(sample_at(
-                "flow",
-                t,
-                SensorData::Flow(OpticalFlow {
-                    rate: Some(Vector2::zeros()),
-                    gyro: Some(Vector3::zeros()),
-                    velocity: None,
-                    integration_s: Some(0.02),
-                    quality: 20,
-                    status: Some(0),
-                    tof: Some(Tof {
-                        distance_m: 0.02,
-                        strength: None,
-                        precision: None,
-                        status: None,
-                    }),
-                }),
-            ));
-        }
+        let batch = still_on_gear(k, ("flow", &flow));
         for e in batch.iter().flat_map(|s| est.process(s)) {
             if e.kind() == "initialised" {
                 started = Some((e.time_us, e.source.clone()));
@@ -1050,31 +1054,17 @@ fn an_imu_that_has_just_started_is_not_a_carry() {
     let mut est = Estimator::new(flow_range_cfg());
     let mut events = Vec::new();
     let mut valid = Vec::new();
+    let range = SensorData::Range(Range {
+        distance_m: 0.0,
+        min_m: Some(0.2),
+        max_m: Some(40.0),
+        signal_quality: None,
+        variance: None,
+        orientation: Some(25),
+    });
     for k in 0..600i64 {
         let t = 1_000_000 + k * 5_000;
-        let mut batch = vec![sample_at("imu", t, still_imu())];
-        if k % 4 == 0 {
-            batch.push(sample_at(
-                "range",
-                t,
-                SensorData::Range(Range {
-                    distance_m: 0.0,
-                    min_m: Some(0.2),
-                    max_m: Some(40.0),
-                    signal_quality: None,
-                    variance: None,
-                    orientation: Some(25),
-                }),
-            ));
-            batch.push(sample_at(
-                "attitude",
-                t,
-                SensorData::Attitude(Attitude {
-                    orientation: UnitQuaternion::identity(),
-                    rates: None,
-                }),
-            ));
-        }
+        let mut batch = still_on_gear(k, ("range", &range));
         if k % 40 == 0 {
             batch.push(sample_at(
                 "state",
