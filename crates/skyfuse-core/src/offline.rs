@@ -354,15 +354,14 @@ fn availability(validity: &[(f64, bool)], airborne: &[(f64, bool)]) -> Availabil
             air_gap = 0.0;
         }
     }
-    // Airborne with no pose at all (before the filter started, or after it stopped)
-    // counts as invalid: a flight whose filter starts only at its landing is not valid
-    // throughout (randomised draw 189 read "100 %" over its last 4 s of 155).
-    let end = validity.last().map_or(0.0, |v| v.0);
-    let first_pose = validity.first().map_or(end, |v| v.0);
+    // Airborne before the first pose (the filter not started yet) counts as invalid: a
+    // flight whose filter starts only at its landing is not valid throughout
+    // (randomised draw 189 read "100 %" over its last 4 s of 155).
+    let first_pose = validity.first().map_or(0.0, |v| v.0);
     let mut uncovered = 0.0;
     for (i, &(ta, a)) in airborne.iter().enumerate() {
         if a {
-            let next = airborne.get(i + 1).map_or(end, |n| n.0).min(end.max(ta));
+            let next = airborne.get(i + 1).map_or(first_pose, |n| n.0);
             let before = (next.min(first_pose) - ta).max(0.0);
             air_longest = air_longest.max(before);
             uncovered += before;
@@ -1577,8 +1576,6 @@ mod reference_tests {
         }
     }
 
-    /// A GNSS track has no orientation: registering a north-facing estimate on it at
-    /// the first pose moves the estimate and does not turn it by its heading.
     #[test]
     fn airborne_before_the_first_pose_counts_as_invalid() {
         // In the air from 1 s; the filter's first pose at 8 s, valid to the end at 10 s.
@@ -1593,6 +1590,8 @@ mod reference_tests {
         assert_eq!(b.airborne_valid_fraction, Some(1.0));
     }
 
+    /// A GNSS track has no orientation: registering a north-facing estimate on it at
+    /// the first pose moves the estimate and does not turn it by its heading.
     #[test]
     fn a_position_only_reference_registers_without_turning() {
         let north = UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2);

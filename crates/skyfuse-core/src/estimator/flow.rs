@@ -174,22 +174,26 @@ const HEIGHT_AGE_SPEED: f64 = 1.0;
 const FUSED_HEIGHT_MAX_STD: f64 = 0.5;
 const FUSED_HEIGHT_MAX_FRACTION: f64 = 0.2;
 
+/// A flow module's own ToF's limits, m: the source's, else the defaults.
+fn tof_limits(sc: &super::config::SourceConfig) -> (f64, f64) {
+    (
+        sc.min_m.unwrap_or(super::config::DEFAULT_TOF_MIN_M),
+        sc.max_m.unwrap_or(super::config::DEFAULT_TOF_MAX_M),
+    )
+}
+
 /// Height along the body's down axis for the flow and its variance: own ToF, else a
 /// range finder (its age adding to its error), else the fused height above the terrain
 /// over the tilt cosine (with the filter's own uncertainty of it).
+/// `(lo, hi)`: the ToF's limits ([`tof_limits`]).
 fn flow_height(
     core: &Core,
     ctx: &Ctx,
     t: i64,
-    source: &str,
+    (lo, hi): (f64, f64),
     f: &OpticalFlow,
 ) -> Option<(f64, f64)> {
     let cfg = ctx.cfg;
-    let sc = cfg.source(source);
-    let (lo, hi) = (
-        sc.min_m.unwrap_or(super::config::DEFAULT_TOF_MIN_M),
-        sc.max_m.unwrap_or(super::config::DEFAULT_TOF_MAX_M),
-    );
     let noise = cfg.range_noise * cfg.range_noise;
     if let Some(tof) = &f.tof {
         if tof.distance_m.is_finite() && tof.distance_m > lo && tof.distance_m < hi {
@@ -233,11 +237,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     // vertical accelerometer bias (randomised draws 102, 220, 583: valid 3-11 %).
     // Only that: a ToF in range does not contradict a separate range finder on its
     // gear (a longer one's minimum is higher), and the evidence goes stale by itself.
+    let tof_lim = tof_limits(&sc);
     if let Some(tof) = f.tof.as_ref().filter(|t| t.distance_m.is_finite()) {
-        let min = cfg
-            .source(source)
-            .min_m
-            .unwrap_or(super::config::DEFAULT_TOF_MIN_M);
+        let min = tof_lim.0;
         if tof.distance_m <= min {
             super::ground::range_sample(&mut core.ground, t, tof.distance_m, min, true);
         }
@@ -249,7 +251,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
             .last_t = Some(t);
         return;
     }
-    let Some((height, height_var)) = flow_height(core, ctx, t, source, f) else {
+    let Some((height, height_var)) = flow_height(core, ctx, t, tof_lim, f) else {
         core.reject(t, source, "no height for the flow", ctx);
         return;
     };

@@ -327,14 +327,14 @@ impl Estimator {
         }
         let mapped = self.clocks.host_time(&self.cfg, s);
         let mut t = mapped;
-        if kind != SensorKind::Imu && self.core.delay_floor_s.get(src).is_none() {
-            let floor = -(self.cfg.latency_us(src, kind) as f64) * 1e-6;
-            self.core.delay_floor_s.put(src, floor);
-            for (_, snap) in self.snaps.iter_mut() {
-                snap.delay_floor_s.put(src, floor);
-            }
-        }
         if kind != SensorKind::Imu {
+            if self.core.delay_floor_s.get(src).is_none() {
+                let floor = -(self.cfg.latency_us(src, kind) as f64) * 1e-6;
+                self.core.delay_floor_s.put(src, floor);
+                for (_, snap) in self.snaps.iter_mut() {
+                    snap.delay_floor_s.put(src, floor);
+                }
+            }
             let (shift, newest) = self.delay_shift.get_or_insert_with(src, || (0, i64::MIN));
             t -= *shift;
             // A source whose samples were just moved earlier skips those that would
