@@ -32,6 +32,9 @@ pub struct Sub {
     /// When it was started as a copy of the main filter, µs (host clock): what it
     /// separates is what the source did since.
     pub since: i64,
+    /// It fused a measurement the main filter refused since it started: its
+    /// information is no longer a part of the main filter's (see `integrity`).
+    pub took_refused: bool,
 }
 
 /// The main filter and its sub-filters.
@@ -92,14 +95,21 @@ impl Bank {
     /// Returns the main filter's outcome.
     pub fn update(&mut self, m: &Measurement, gate: f64, source: Option<&str>) -> UpdateOutcome {
         let main_x = &self.main.x;
-        for s in &mut self.subs {
+        let mut accepted = [false; MAX_SUBS];
+        for (s, took) in self.subs.iter_mut().zip(accepted.iter_mut()) {
             if source.is_some_and(|src| s.without == src) {
                 continue;
             }
             let mk = m.about(main_x, &s.ekf.x);
-            s.ekf.update(&mk, gate, false);
+            *took = s.ekf.update(&mk, gate, false).accepted;
         }
-        self.main.update(m, gate, false)
+        let out = self.main.update(m, gate, false);
+        if !out.accepted {
+            for (s, took) in self.subs.iter_mut().zip(accepted) {
+                s.took_refused |= took;
+            }
+        }
+        out
     }
 
     /// A reset to the measurement `m` (every filter): the states in `states` forget
@@ -112,6 +122,7 @@ impl Bank {
         for s in &mut self.subs {
             s.ekf = self.main.clone();
             s.since = t;
+            s.took_refused = false;
         }
     }
 
@@ -128,6 +139,7 @@ impl Bank {
             without: source.to_string(),
             ekf: self.main.clone(),
             since: t,
+            took_refused: false,
         });
         true
     }
@@ -137,6 +149,7 @@ impl Bank {
         if let Some(s) = self.subs.iter_mut().find(|s| s.without == source) {
             s.ekf = self.main.clone();
             s.since = t;
+            s.took_refused = false;
         }
     }
 
@@ -157,6 +170,7 @@ impl Bank {
         for s in &mut self.subs {
             s.ekf = self.main.clone();
             s.since = t;
+            s.took_refused = false;
         }
         true
     }
@@ -208,5 +222,33 @@ mod tests {
         assert!(b.exclude("gps", 1));
         assert!((b.pos() - alone.pos()).norm() < 1e-9);
         assert!(b.sub("gps").is_none());
+    }
+
+    /// A sub-filter that fused what the main filter refused says so (its separation is
+    /// then no longer tested against the difference of the covariances), until it
+    /// starts again from the main filter.
+    #[test]
+    fn a_sub_filter_that_took_a_refused_measurement_says_so() {
+        let mut b = bank();
+        b.ensure_sub("camera", 0);
+        b.ensure_sub("gps", 0);
+        // The camera holds the main filter tight; the sub-filter without it is loose.
+        for _ in 0..20 {
+            let m = position(Vector3::zeros(), b.main(), 0.001);
+            b.update(&m, 5.0, Some("camera"));
+        }
+        let m = position(Vector3::new(2.0, 0.0, 0.0), b.main(), 0.01);
+        assert!(
+            !b.update(&m, 5.0, Some("gps")).accepted,
+            "the main filter refuses it"
+        );
+        let took = |b: &Bank, s: &str| b.sub(s).expect("sub").took_refused;
+        assert!(
+            took(&b, "camera"),
+            "the sub-filter without the camera took it"
+        );
+        assert!(!took(&b, "gps"), "the one without the GNSS never saw it");
+        b.restart_sub("camera", 1);
+        assert!(!took(&b, "camera"));
     }
 }

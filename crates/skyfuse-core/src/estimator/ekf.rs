@@ -333,6 +333,10 @@ impl Ekf {
         self.x.fixed_rows::<3>(IDX_BA).into_owned()
     }
 
+    pub fn gnss_bias(&self) -> Vector3<f64> {
+        self.x.fixed_rows::<3>(IDX_BG).into_owned()
+    }
+
     /// Set the GNSS slow-error model and its prior.
     pub fn set_gnss_bias_model(&mut self, std: Vector3<f64>, tau_s: f64) {
         self.gnss_bias_std = std;
@@ -724,6 +728,42 @@ impl Ekf {
         }
         let sd = DMatrix::from_iterator(3, 3, s.iter().copied());
         self.p += &j * sd * j.transpose();
+        self.symmetrise();
+    }
+
+    /// The position was just taken from a GNSS fix, or the frame anchored to one: its
+    /// error is the fix's, whose slow part (variance `slow_var` per axis) is what the
+    /// bias states hold, so `cov(p, b) = −P_bb` as in
+    /// [`Self::reset_pos_vel_through_bias`]. Without it one fix counted twice, as the
+    /// position's prior and as the bias's, and the first minute's fixes "separated"
+    /// them: randomised draw 95's σ up fell from 3.3 to 1.8 m in 20 s with its height
+    /// 9 m off for the whole flight. `frame`: every state the frame's offset moved
+    /// (terrain, odometry offsets; [`Self::add_frame_uncertainty`]) shares it, with the
+    /// sign it was moved by. The bias was never fused before: its prior is `slow_var`.
+    pub fn tie_to_gnss_bias(&mut self, slow_var: Vector3<f64>, frame: bool) {
+        let n = self.n();
+        for i in 0..3 {
+            let b = IDX_BG + i;
+            let var = slow_var[i].max(0.0);
+            for j in 0..n {
+                self.p[(b, j)] = 0.0;
+                self.p[(j, b)] = 0.0;
+            }
+            self.p[(b, b)] = var;
+            let mut moved = vec![(IDX_P + i, -1.0)];
+            if frame {
+                if i == 2 {
+                    moved.push((IDX_TERRAIN, -1.0));
+                }
+                moved.extend(self.blocks.iter().map(|&(_, idx)| (idx + i, 1.0)));
+            }
+            for (j, sign) in moved {
+                // At most the state's own variance: the joint covariance stays positive.
+                let c = sign * var.min(self.p[(j, j)]);
+                self.p[(j, b)] = c;
+                self.p[(b, j)] = c;
+            }
+        }
         self.symmetrise();
     }
 
@@ -1537,5 +1577,42 @@ mod tests {
             let nis_now = (y.transpose() * s_now.try_inverse().expect("S") * &y)[(0, 0)];
             assert!((ekf.test_ratio(&m, 2.0) - nis_now / 2.0).abs() < 1e-12);
         }
+    }
+
+    /// A filter started at a GNSS fix has that fix's error, whose slow part the bias
+    /// states hold: the same fix fused again (or any fix while the slow error has not
+    /// changed) cannot make the position surer than that slow part. Untied, the two
+    /// priors counted as two measurements and σ fell to √(S/2).
+    #[test]
+    fn a_filter_started_at_a_fix_does_not_count_its_slow_error_twice() {
+        let (slow, white) = (0.8, 0.2);
+        let mut ekf = Ekf::new(
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::repeat(slow + white),
+            Vector3::repeat(1.0),
+            0.0,
+        );
+        ekf.set_gnss_bias_model(Vector3::repeat(slow.sqrt()), 120.0);
+        ekf.tie_to_gnss_bias(Vector3::repeat(slow), false);
+        let r = Matrix3::identity() * white;
+        for _ in 0..20 {
+            let mut m = Measurement::of_states(IDX_P, 3, &Vector3::zeros(), &r);
+            for i in 0..3 {
+                m.set_jacobian(i, IDX_BG + i, 1.0);
+            }
+            assert!(ekf.update(&m, 5.0, false).accepted);
+        }
+        for i in 0..3 {
+            let var = ekf.p[(IDX_P + i, IDX_P + i)];
+            assert!(
+                var >= slow - 1e-9,
+                "axis {i}: position variance {var} below the slow part {slow}"
+            );
+        }
+        assert!(
+            ekf.p.symmetric_eigen().eigenvalues.min() > -1e-9,
+            "covariance not positive"
+        );
     }
 }

@@ -17,10 +17,38 @@ use nalgebra::{Matrix3, Vector3};
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct GnssState {
     pub origin: Option<LocalEnu>,
+    /// The variance of the fix the origin was placed at, whole and its slow part, per
+    /// axis: a filter that starts later (on its gear, from a camera) starts there, and
+    /// is as far from it as that fix was from the truth.
+    pub origin_var: Option<(Vector3<f64>, Vector3<f64>)>,
     /// Last ENU position per source (for the frame deltas).
     pub last: SourceMap<(i64, Vector3<f64>)>,
     /// Last time a GNSS fix was fused, µs.
     pub last_fused: Option<i64>,
+    /// Per source, since when its positions have been refused (none accepted since), µs.
+    pub refused_since: SourceMap<Option<i64>>,
+    /// Per source, how far off it may be beyond what it reports, 1σ per axis (m), and
+    /// since when (µs): set when it was reset to after a long refusal, fading over the
+    /// slow error's correlation time (see [`GnssState::doubt_at`]).
+    pub doubt: SourceMap<Option<(i64, Vector3<f64>)>>,
+}
+
+impl GnssState {
+    /// A position of `source` was fused: its refusals are over.
+    fn passed(&mut self, source: &str) {
+        if let Some(since) = self.refused_since.get_mut(source) {
+            *since = None;
+        }
+    }
+
+    /// The doubt on `source`'s slow error at `t`: as large as it was found off, fading
+    /// with the slow error's own correlation time `tau_s`.
+    pub fn doubt_at(&self, source: &str, t: i64, tau_s: f64) -> Vector3<f64> {
+        match self.doubt.get(source).copied().flatten() {
+            Some((since, d)) => d * (-((t - since).max(0) as f64 * 1e-6) / tau_s.max(1.0)).exp(),
+            None => Vector3::zeros(),
+        }
+    }
 }
 
 /// Checks of one fix; returns the ENU covariance.
@@ -66,6 +94,8 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
             return;
         }
     };
+    let bias_std = bias_std(&cov, cfg);
+    let slow_var = bias_std.component_mul(&bias_std);
     // Control: origin.
     let origin = match core.gnss.origin {
         Some(o) => o,
@@ -79,13 +109,17 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
                         let yaw_var = cfg.yaw_error_std * cfg.yaw_error_std;
                         bank.each(|ekf| {
                             ekf.add_frame_uncertainty(&cov);
+                            ekf.tie_to_gnss_bias(slow_var, true);
                             ekf.add_heading_uncertainty(yaw_var);
                         });
                     }
                     core.wrls.add_frame_uncertainty(&cov);
                     LocalEnu::new(lat, lon, alt)
                 }
-                None => at_fix,
+                None => {
+                    core.gnss.origin_var = Some((cov.diagonal(), slow_var));
+                    at_fix
+                }
             };
             core.gnss.origin = Some(origin);
             core.event(
@@ -117,7 +151,6 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     // The slow part of the error: a fraction of the variance the receiver reports (at
     // most the configured 1σ), a state of the filter; the rest is white. A configured
     // noise is the white part (1σ horizontal; vertical keeps the message's ratio).
-    let bias_std = bias_std(&cov, cfg);
     let white = match cfg.source(source).noise {
         Some(s) => {
             let ratio = (cov[(2, 2)] / cov[(0, 0)].max(1e-12)).max(1.0);
@@ -131,8 +164,12 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
             w
         }
     };
+    // The slow error's model is at least what the receiver was found off by lately: a
+    // Gauss-Markov error of its reported size cannot be metres off, and the filter,
+    // told so, learnt within 2 s that the reset position was not that uncertain.
+    let model_std = bias_std.sup(&core.gnss.doubt_at(source, t, cfg.gnss_bias_tau_s));
     if let Some(bank) = core.ekf.as_mut() {
-        bank.each(|e| e.gnss_bias_std = bias_std);
+        bank.each(|e| e.gnss_bias_std = model_std);
     }
     core.wrls.add_absolute(source, enu, cov.diagonal());
     core.monitors
@@ -152,6 +189,16 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     // Held by the no-aiding constraints is lost too: the hold is not where the vehicle is.
     let lost =
         core.unaided_since.is_some() || core.ground.last_h_aiding.is_none_or(|l| t - l > timeout);
+    // A receiver whose positions the gate refused for `reject_reset_s` (multipath coming
+    // in looks exactly so; or the estimate drifted) and that passes again, or is reset
+    // to: which of the two was wrong nobody knows.
+    let refused_long = core
+        .gnss
+        .refused_since
+        .get(source)
+        .copied()
+        .flatten()
+        .is_some_and(|since| t - since >= (cfg.reject_reset_s * 1e6) as i64);
     if lost && core.mode_ekf_direct {
         if let Some(bank) = core.ekf.as_mut() {
             let bias = Vector3::new(
@@ -161,6 +208,23 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
             );
             let from = bank.pos();
             let v_var = vel_noise * vel_noise;
+            if refused_long {
+                // Refused up to the outage: its slow error may be the whole jump, and
+                // the position taken through it is that uncertain (randomised draw 86:
+                // reset 10.7 m onto a multipath offset with σ 1 m).
+                let jump = enu - bias - from;
+                let doubt = jump
+                    .abs()
+                    .sup(&core.gnss.doubt_at(source, t, cfg.gnss_bias_tau_s));
+                bank.each(|ekf| {
+                    ekf.gnss_bias_std = ekf.gnss_bias_std.sup(&doubt);
+                    for i in 0..3 {
+                        let k = super::ekf::IDX_BG + i;
+                        ekf.p[(k, k)] = ekf.p[(k, k)].max(doubt[i] * doubt[i]);
+                    }
+                });
+                *core.gnss.doubt.get_or_insert_with(source, || None) = Some((t, doubt));
+            }
             bank.each(|ekf| ekf.reset_pos_vel_through_bias(enu, vel, cov.diagonal(), v_var));
             for st in core.odom.values_mut() {
                 st.align = None;
@@ -187,6 +251,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
             core.aided(t, "gnss");
             core.unaided_since = None;
             core.gnss.last_fused = Some(t);
+            core.gnss.passed(source);
             return;
         }
     }
@@ -195,6 +260,12 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     if accepted {
         core.gnss.last_fused = Some(t);
         core.unaided_since = None;
+        core.gnss.passed(source);
+    } else if core.initialised() {
+        core.gnss
+            .refused_since
+            .get_or_insert_with(source, || None)
+            .get_or_insert(t);
     }
     if let Some(v) = vel {
         let r = Matrix3::identity() * (vel_noise * vel_noise);

@@ -26,6 +26,8 @@
 //!   if it were exact, plus what the refused velocities add up to since), and so does
 //!   the covariance sent. A filter that leaves its only height source on a wrong
 //!   acceleration bias shows its bound growing with the runaway instead of σz 0.1 m.
+//!   A refused position stands until a position is accepted: a velocity that passes
+//!   (the same receiver's) bounds the drift, not the offset.
 //! - **Sub-filters start again** from the main filter once they have been quiet (test
 //!   ratio under [`RESTART_QUIET_RATIO`]) for `restart_s`: a sub-filter left to run
 //!   forever drifts as far as its remaining sources let it (a flow without its GNSS),
@@ -52,8 +54,11 @@ pub const DEFAULT_K_FFMD: f64 = 5.5;
 /// that a multicopter on optical flow alone, whose compass wanders by degrees, keeps a
 /// pose over most of a flight within a few hundred metres of its start (randomised
 /// flights: see BENCHMARKS.md); lower them where the vehicle flies close to obstacles.
+/// Vertical: 35 m, LPV-200's, which a GNSS reporting 4-5 m of vertical accuracy (an
+/// ordinary receiver's) can meet at 5.5σ; its altitude anchors the height whatever
+/// the barometer and range finder say of it relatively.
 pub const DEFAULT_HORIZONTAL_ALERT_M: f64 = 50.0;
-pub const DEFAULT_VERTICAL_ALERT_M: f64 = 20.0;
+pub const DEFAULT_VERTICAL_ALERT_M: f64 = 35.0;
 /// What a GNSS receiver's error can be beyond the accuracy it reports (multipath, a
 /// bad fix), horizontal and vertical, m. Relative sources (a flow, an odometry
 /// segment) see it come and go, not an offset already in the estimate: at the origin,
@@ -61,7 +66,7 @@ pub const DEFAULT_VERTICAL_ALERT_M: f64 = 20.0;
 /// the protection level carries it. Horizontal: 200 randomised flights (seed 1), the
 /// poses outside their bound 5 011 → 1 303 at 98.5 % airborne availability (98.7 %
 /// without). Vertical: none by default — 10 m caught no failure there and, against the
-/// 20 m vertical alert limit, cut the median availability to 94.4 %.
+/// 20 m vertical alert limit of then, cut the median availability to 94.4 %.
 pub const DEFAULT_GNSS_FAULT_HORIZONTAL_M: f64 = 10.0;
 pub const DEFAULT_GNSS_FAULT_VERTICAL_M: f64 = 0.0;
 /// An excluded source agrees again for this long before it is fused again, s.
@@ -153,6 +158,9 @@ impl IntegrityConfig {
 pub struct Channels {
     pub horizontal: bool,
     pub vertical: bool,
+    /// Per channel (horizontal, vertical): whether it reads the position there, not
+    /// only the velocity. Only such a measurement, accepted, answers a refused position.
+    pub position: [bool; 2],
 }
 
 impl Channels {
@@ -165,10 +173,16 @@ impl Channels {
                     continue;
                 }
                 match k {
-                    k if k == IDX_P || k == IDX_P + 1 || k == IDX_V || k == IDX_V + 1 => {
-                        c.horizontal = true
+                    k if k == IDX_P || k == IDX_P + 1 => {
+                        c.horizontal = true;
+                        c.position[0] = true;
                     }
-                    k if k == IDX_P + 2 || k == IDX_V + 2 || k == IDX_TERRAIN => c.vertical = true,
+                    k if k == IDX_V || k == IDX_V + 1 => c.horizontal = true,
+                    k if k == IDX_P + 2 => {
+                        c.vertical = true;
+                        c.position[1] = true;
+                    }
+                    k if k == IDX_V + 2 || k == IDX_TERRAIN => c.vertical = true,
                     _ => {}
                 }
             }
@@ -269,13 +283,22 @@ impl IntegrityState {
         }
     }
 
-    /// An aiding measurement of these channels was accepted: they are held again.
+    /// An aiding measurement of these channels was accepted: they are held again. A
+    /// velocity answers the refused velocities' drift, not a refused position: a GNSS
+    /// whose velocity passed while its positions were refused for a minute (its
+    /// multipath over, the estimate 4.3 m off on its last fixes) had the covariance sent
+    /// claim 0.7 m all along (randomised draw 74: 2 595 poses beyond 5σ).
     pub fn held(&mut self, ch: Channels) {
-        if ch.horizontal {
-            self.refused[0] = None;
-        }
-        if ch.vertical {
-            self.refused[1] = None;
+        for (c, on) in [ch.horizontal, ch.vertical].into_iter().enumerate() {
+            if !on {
+                continue;
+            }
+            match self.refused[c].as_mut() {
+                Some(streak) if !ch.position[c] && streak.shift != Vector3::zeros() => {
+                    streak.drift = Vector3::zeros();
+                }
+                _ => self.refused[c] = None,
+            }
         }
     }
 
@@ -409,10 +432,16 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
         // something the main one refused (a GNSS fix that an unaided sub-filter took
         // after an outage while the main one, held by the flow, gated it out): there the
         // two are taken as independent, Pk + P0. With the difference, floored, a flow
-        // was excluded for disagreeing with a GNSS that was 4.7 m off (draw 74).
+        // was excluded for disagreeing with a GNSS that was 4.7 m off (draw 74). So is
+        // one that fused anything the main one refused, whatever its σ: a camera was
+        // excluded for disagreeing with a GNSS back from an outage 3 m off (draw 127).
         let sigma_d = Vector3::from_fn(|a, _| {
             let (k, z) = (pk[(a, a)].max(0.0), p0[(a, a)].max(0.0));
-            let var = if k >= z { k - z } else { k + z };
+            let var = if k >= z && !sub.took_refused {
+                k - z
+            } else {
+                k + z
+            };
             var.sqrt().max(SIGMA_D_FLOOR)
         });
         // Tested on a channel the source informs and another source shares.
@@ -610,7 +639,8 @@ mod tests {
             Channels::of(&m),
             Channels {
                 horizontal: false,
-                vertical: true
+                vertical: true,
+                position: [false, true],
             }
         );
         let r = nalgebra::Matrix3::identity();
@@ -619,7 +649,8 @@ mod tests {
             Channels::of(&m),
             Channels {
                 horizontal: true,
-                vertical: false
+                vertical: false,
+                position: [false, false],
             }
         );
         let m = Measurement::of_states(IDX_P, 3, &Vector3::zeros(), &r);
@@ -629,19 +660,26 @@ mod tests {
     /// A channel whose every measurement is refused carries the largest shift a
     /// refused one would have made plus the refused velocities integrated over the
     /// time refused (each step at most [`DRIFT_STEP_MAX_US`]); one accepted
-    /// measurement of that channel clears it, and the other channel keeps its own.
+    /// measurement of that channel's position clears it (a velocity only the drift),
+    /// and the other channel keeps its own.
     #[test]
     fn refused_measurements_bound_the_estimate_until_one_is_accepted() {
         let (h, v) = (
             Channels {
                 horizontal: true,
                 vertical: false,
+                position: [true, false],
             },
             Channels {
                 horizontal: false,
                 vertical: true,
+                position: [false, true],
             },
         );
+        let h_velocity = Channels {
+            position: [false, false],
+            ..h
+        };
         let mut st = IntegrityState::default();
         assert_eq!(st.refused_extent(), Vector3::zeros());
         let dv = Vector3::new(0.5, -0.2, 9.0);
@@ -655,6 +693,10 @@ mod tests {
         assert_eq!(e.z, 0.0, "a horizontal refusal says nothing of the height");
         st.refused(v, 0, Vector3::new(0.0, 0.0, -4.0), Vector3::zeros());
         assert_eq!(st.refused_extent().z, 4.0);
+        // A velocity accepted: the refused position still stands, its drift does not.
+        st.held(h_velocity);
+        let e = st.refused_extent();
+        assert_eq!((e.x, e.y, e.z), (2.0, 3.0, 4.0));
         st.held(h);
         let e = st.refused_extent();
         assert_eq!((e.x, e.y, e.z), (0.0, 0.0, 4.0));
