@@ -242,6 +242,9 @@ pub struct IntegrityState {
     /// Per channel (horizontal, vertical): the measurements refused since the last
     /// one accepted there.
     pub refused: [Option<RefusedStreak>; 2],
+    /// Per channel: what a long refusal said when a position ended it, and when (µs):
+    /// fading over [`RELEASE_TAU_S`] (see [`IntegrityState::held`]).
+    pub released: [Option<(i64, Vector3<f64>)>; 2],
     /// Per channel: the mean normalised innovation (yᵢ²/Sᵢ) of the last accepted rows,
     /// about [`MISFIT_ROWS`] of them (see [`IntegrityState::misfit_factor`]).
     pub misfit: [f64; 2],
@@ -255,10 +258,17 @@ pub const MISFIT_OK: f64 = 2.0;
 /// One row counts at most this much (the gate's 5σ).
 const MISFIT_ROW_CAP: f64 = 25.0;
 
+/// A refusal that lasted this long is not resolved by the measurement that ends it, µs.
+pub const LONG_REFUSAL_US: i64 = 3_000_000;
+/// Its disagreement fades over this time once a position ended it, s: a receiver's
+/// multipath lasts seconds to a minute.
+pub const RELEASE_TAU_S: f64 = 60.0;
+
 /// What the refused measurements of a channel say the estimate may be wrong by.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RefusedStreak {
-    /// The latest refusal, µs.
+    /// The first and the latest refusal, µs.
+    pub since: i64,
     pub last: i64,
     /// The largest |shift| of the position, per axis, were a refused measurement
     /// exact (m), and the refused velocity shifts integrated over time (m).
@@ -283,12 +293,16 @@ impl IntegrityState {
         }
     }
 
-    /// An aiding measurement of these channels was accepted: they are held again. A
-    /// velocity answers the refused velocities' drift, not a refused position: a GNSS
-    /// whose velocity passed while its positions were refused for a minute (its
-    /// multipath over, the estimate 4.3 m off on its last fixes) had the covariance sent
-    /// claim 0.7 m all along (randomised draw 74: 2 595 poses beyond 5σ).
-    pub fn held(&mut self, ch: Channels) {
+    /// An aiding measurement of these channels was accepted at `t`: they are held
+    /// again. A velocity answers the refused velocities' drift, not a refused
+    /// position: a GNSS whose velocity passed while its positions were refused for a
+    /// minute (its multipath over, the estimate 4.3 m off on its last fixes) had the
+    /// covariance sent claim 0.7 m all along (randomised draw 74: 2 595 poses beyond
+    /// 5σ). A position that ends a refusal of [`LONG_REFUSAL_US`] or more does not
+    /// settle it either: it may be the liar passing the gate at its edge (draw 55: a fix
+    /// after 24 s of refused multipath moved the estimate 1.7 m onto it and σ fell to
+    /// 0.67 m), so what the refusal said fades over [`RELEASE_TAU_S`] instead.
+    pub fn held(&mut self, ch: Channels, t: i64) {
         for (c, on) in [ch.horizontal, ch.vertical].into_iter().enumerate() {
             if !on {
                 continue;
@@ -297,9 +311,21 @@ impl IntegrityState {
                 Some(streak) if !ch.position[c] && streak.shift != Vector3::zeros() => {
                     streak.drift = Vector3::zeros();
                 }
+                Some(streak) if streak.last - streak.since >= LONG_REFUSAL_US => {
+                    let extent = (streak.shift + streak.drift).sup(&self.released_at(c, t));
+                    self.released[c] = Some((t, extent));
+                    self.refused[c] = None;
+                }
                 _ => self.refused[c] = None,
             }
         }
+    }
+
+    /// What a long refusal of channel `c` still says at `t`.
+    fn released_at(&self, c: usize, t: i64) -> Vector3<f64> {
+        self.released[c].map_or(Vector3::zeros(), |(since, e)| {
+            e * (-((t - since).max(0) as f64 * 1e-6) / RELEASE_TAU_S).exp()
+        })
     }
 
     /// An aiding measurement of these channels was refused at `t`; were it exact the
@@ -311,6 +337,7 @@ impl IntegrityState {
             }
             let axes = if c == 0 { 0..2 } else { 2..3 };
             let streak = self.refused[c].get_or_insert(RefusedStreak {
+                since: t,
                 last: t,
                 shift: Vector3::zeros(),
                 drift: Vector3::zeros(),
@@ -343,11 +370,15 @@ impl IntegrityState {
         self.misfit.map(|m| (m / MISFIT_OK).max(1.0))
     }
 
-    /// Per axis (ENU), what the refused measurements say the estimate may be wrong by, m.
-    pub fn refused_extent(&self) -> Vector3<f64> {
+    /// Per axis (ENU), what the refused measurements say the estimate may be wrong by
+    /// at `t`, m: the open refusals and what the long ones that ended still say.
+    pub fn refused_extent(&self, t: i64) -> Vector3<f64> {
         let mut e = Vector3::zeros();
         for s in self.refused.iter().flatten() {
             e += s.shift + s.drift;
+        }
+        for c in 0..2 {
+            e = e.sup(&self.released_at(c, t));
         }
         e
     }
@@ -501,7 +532,7 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
         }
     }
     // The refused measurements' case (see the module's docs).
-    let refused = core.integrity.refused_extent();
+    let refused = core.integrity.refused_extent(t);
     for a in 0..3 {
         if refused[a] > 0.0 {
             pl[a] = pl[a].max(refused[a] + cfg.k_md * sigma0[a]);
@@ -660,8 +691,8 @@ mod tests {
     /// A channel whose every measurement is refused carries the largest shift a
     /// refused one would have made plus the refused velocities integrated over the
     /// time refused (each step at most [`DRIFT_STEP_MAX_US`]); one accepted
-    /// measurement of that channel's position clears it (a velocity only the drift),
-    /// and the other channel keeps its own.
+    /// measurement of that channel's position ends it (a velocity only the drift),
+    /// a long refusal fading rather than gone, and the other channel keeps its own.
     #[test]
     fn refused_measurements_bound_the_estimate_until_one_is_accepted() {
         let (h, v) = (
@@ -681,27 +712,37 @@ mod tests {
             ..h
         };
         let mut st = IntegrityState::default();
-        assert_eq!(st.refused_extent(), Vector3::zeros());
+        assert_eq!(st.refused_extent(0), Vector3::zeros());
         let dv = Vector3::new(0.5, -0.2, 9.0);
         st.refused(h, 0, Vector3::new(2.0, -1.0, 7.0), dv);
         st.refused(h, 500_000, Vector3::new(-1.0, 3.0, 0.0), dv);
         // 10 s later: counted as 1 s.
         st.refused(h, 10_500_000, Vector3::zeros(), dv);
-        let e = st.refused_extent();
+        let e = st.refused_extent(0);
         assert!((e.x - (2.0 + 0.5 * 1.5)).abs() < 1e-12, "{e}");
         assert!((e.y - (3.0 + 0.2 * 1.5)).abs() < 1e-12, "{e}");
         assert_eq!(e.z, 0.0, "a horizontal refusal says nothing of the height");
         st.refused(v, 0, Vector3::new(0.0, 0.0, -4.0), Vector3::zeros());
-        assert_eq!(st.refused_extent().z, 4.0);
+        assert_eq!(st.refused_extent(0).z, 4.0);
         // A velocity accepted: the refused position still stands, its drift does not.
-        st.held(h_velocity);
-        let e = st.refused_extent();
+        st.held(h_velocity, 0);
+        let e = st.refused_extent(0);
         assert_eq!((e.x, e.y, e.z), (2.0, 3.0, 4.0));
-        st.held(h);
-        let e = st.refused_extent();
-        assert_eq!((e.x, e.y, e.z), (0.0, 0.0, 4.0));
-        st.held(v);
-        assert_eq!(st.refused_extent(), Vector3::zeros());
+        // A position ends the horizontal refusal, which lasted 10.5 s: what it said
+        // fades over RELEASE_TAU_S. The vertical one, a moment long, is settled.
+        let t = 10_600_000;
+        st.held(h, t);
+        let e = st.refused_extent(t);
+        assert_eq!((e.x, e.y, e.z), (2.0, 3.0, 4.0));
+        st.held(v, t);
+        let e = st.refused_extent(t + 60_000_000);
+        let fade = (-1.0f64).exp();
+        assert!(
+            (e.x - 2.0 * fade).abs() < 1e-12 && (e.y - 3.0 * fade).abs() < 1e-12,
+            "{e}"
+        );
+        assert_eq!(e.z, 0.0);
+        assert!(st.refused.iter().all(Option::is_none));
     }
 
     #[test]

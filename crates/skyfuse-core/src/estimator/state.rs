@@ -372,7 +372,7 @@ impl Core {
                     self.last_v_aiding = Some(t);
                 }
                 self.integrity.fused(source, ch, t);
-                self.integrity.held(ch);
+                self.integrity.held(ch, t);
                 if let Some(c) = self.converging.as_mut().filter(|c| c.0 == source) {
                     c.2 = true;
                 }
@@ -504,7 +504,7 @@ impl Core {
                 bank.each(|e| e.p[(k, k)] += dv * dv);
             }
         }
-        self.integrity.held(ch);
+        self.integrity.held(ch, t);
         // Which of the two was wrong nobody knows: a GNSS's slow error may be as
         // large as the jump (multipath that came in over seconds looks exactly so),
         // and stays as uncertain until the fixes have shown otherwise.
