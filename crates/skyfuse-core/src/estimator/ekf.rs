@@ -731,38 +731,28 @@ impl Ekf {
         self.symmetrise();
     }
 
-    /// The position was just taken from a GNSS fix, or the frame anchored to one: its
-    /// error is the fix's, whose slow part (variance `slow_var` per axis) is what the
-    /// bias states hold, so `cov(p, b) = −P_bb` as in
+    /// The position was just taken from a GNSS fix (the filter started at one, or after
+    /// one placed the origin): its error is the fix's, whose slow part (variance
+    /// `slow_var` per axis) is what the bias states hold, so `cov(p, b) = −P_bb` as in
     /// [`Self::reset_pos_vel_through_bias`]. Without it one fix counted twice, as the
     /// position's prior and as the bias's, and the first minute's fixes "separated"
     /// them: randomised draw 95's σ up fell from 3.3 to 1.8 m in 20 s with its height
-    /// 9 m off for the whole flight. `frame`: every state the frame's offset moved
-    /// (terrain, odometry offsets; [`Self::add_frame_uncertainty`]) shares it, with the
-    /// sign it was moved by. The bias was never fused before: its prior is `slow_var`.
-    pub fn tie_to_gnss_bias(&mut self, slow_var: Vector3<f64>, frame: bool) {
+    /// 9 m off for the whole flight. The bias was never fused before: its prior is
+    /// `slow_var`.
+    pub fn tie_to_gnss_bias(&mut self, slow_var: Vector3<f64>) {
         let n = self.n();
         for i in 0..3 {
-            let b = IDX_BG + i;
+            let (p, b) = (IDX_P + i, IDX_BG + i);
             let var = slow_var[i].max(0.0);
             for j in 0..n {
                 self.p[(b, j)] = 0.0;
                 self.p[(j, b)] = 0.0;
             }
             self.p[(b, b)] = var;
-            let mut moved = vec![(IDX_P + i, -1.0)];
-            if frame {
-                if i == 2 {
-                    moved.push((IDX_TERRAIN, -1.0));
-                }
-                moved.extend(self.blocks.iter().map(|&(_, idx)| (idx + i, 1.0)));
-            }
-            for (j, sign) in moved {
-                // At most the state's own variance: the joint covariance stays positive.
-                let c = sign * var.min(self.p[(j, j)]);
-                self.p[(j, b)] = c;
-                self.p[(b, j)] = c;
-            }
+            // At most the position's own variance: the joint covariance stays positive.
+            let c = -var.min(self.p[(p, p)]);
+            self.p[(p, b)] = c;
+            self.p[(b, p)] = c;
         }
         self.symmetrise();
     }
@@ -1594,7 +1584,7 @@ mod tests {
             0.0,
         );
         ekf.set_gnss_bias_model(Vector3::repeat(slow.sqrt()), 120.0);
-        ekf.tie_to_gnss_bias(Vector3::repeat(slow), false);
+        ekf.tie_to_gnss_bias(Vector3::repeat(slow));
         let r = Matrix3::identity() * white;
         for _ in 0..20 {
             let mut m = Measurement::of_states(IDX_P, 3, &Vector3::zeros(), &r);

@@ -109,7 +109,6 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
                         let yaw_var = cfg.yaw_error_std * cfg.yaw_error_std;
                         bank.each(|ekf| {
                             ekf.add_frame_uncertainty(&cov);
-                            ekf.tie_to_gnss_bias(slow_var, true);
                             ekf.add_heading_uncertainty(yaw_var);
                         });
                     }

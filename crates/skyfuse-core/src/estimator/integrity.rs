@@ -54,11 +54,8 @@ pub const DEFAULT_K_FFMD: f64 = 5.5;
 /// that a multicopter on optical flow alone, whose compass wanders by degrees, keeps a
 /// pose over most of a flight within a few hundred metres of its start (randomised
 /// flights: see BENCHMARKS.md); lower them where the vehicle flies close to obstacles.
-/// Vertical: 35 m, LPV-200's, which a GNSS reporting 4-5 m of vertical accuracy (an
-/// ordinary receiver's) can meet at 5.5σ; its altitude anchors the height whatever
-/// the barometer and range finder say of it relatively.
 pub const DEFAULT_HORIZONTAL_ALERT_M: f64 = 50.0;
-pub const DEFAULT_VERTICAL_ALERT_M: f64 = 35.0;
+pub const DEFAULT_VERTICAL_ALERT_M: f64 = 20.0;
 /// What a GNSS receiver's error can be beyond the accuracy it reports (multipath, a
 /// bad fix), horizontal and vertical, m. Relative sources (a flow, an odometry
 /// segment) see it come and go, not an offset already in the estimate: at the origin,
@@ -66,7 +63,7 @@ pub const DEFAULT_VERTICAL_ALERT_M: f64 = 35.0;
 /// the protection level carries it. Horizontal: 200 randomised flights (seed 1), the
 /// poses outside their bound 5 011 → 1 303 at 98.5 % airborne availability (98.7 %
 /// without). Vertical: none by default — 10 m caught no failure there and, against the
-/// 20 m vertical alert limit of then, cut the median availability to 94.4 %.
+/// 20 m vertical alert limit, cut the median availability to 94.4 %.
 pub const DEFAULT_GNSS_FAULT_HORIZONTAL_M: f64 = 10.0;
 pub const DEFAULT_GNSS_FAULT_VERTICAL_M: f64 = 0.0;
 /// An excluded source agrees again for this long before it is fused again, s.

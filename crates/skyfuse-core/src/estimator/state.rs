@@ -865,7 +865,7 @@ impl Core {
             ekf.set_gnss_bias_model(bias, cfg.gnss_bias_tau_s);
             if from_fix || self.gnss.origin_var.is_some() {
                 // Its error is that fix's, whose slow part the bias states hold.
-                ekf.tie_to_gnss_bias(bias.component_mul(&bias), false);
+                ekf.tie_to_gnss_bias(bias.component_mul(&bias));
             }
             ekf.delay_rw = cfg.delay_rw;
             ekf.align_yaw_rw = super::odometry::VO_YAW_RW;

@@ -1299,16 +1299,7 @@ fn a_refused_position_is_covered_while_only_its_velocity_passes() {
             0.0
         }
     };
-    let (score, _, _) = gnss_imu_flight_scored(sim_cfg(Mode::Ekf), 5, 90.0, 60.0, |s, tr| {
-        let mut s = s.clone();
-        if let SensorData::Gnss(g) = &mut s.data {
-            g.lat_deg += offset(tr.t) / 111_000.0;
-        }
-        vec![s]
-    });
-    println!("{score:?}");
-    assert!(score.poses > 80, "{score:?}");
-    assert!(score.within_3_sigma >= 0.99, "{score:?}");
+    assert_covered_with_offset_north(5, 90.0, 60.0, offset, 80);
 }
 
 /// A receiver's multipath that came in at once and went out slowly: its fixes are
@@ -1326,15 +1317,23 @@ fn a_long_refusal_is_not_settled_by_the_fix_that_ends_it() {
             0.0
         }
     };
-    let (score, _, _) = gnss_imu_flight_scored(sim_cfg(Mode::Ekf), 7, 90.0, 20.0, |s, tr| {
-        let mut s = s.clone();
-        if let SensorData::Gnss(g) = &mut s.data {
-            g.lat_deg += offset(tr.t) / 111_000.0;
-        }
-        vec![s]
+    assert_covered_with_offset_north(7, 90.0, 20.0, offset, 200);
+}
+
+/// A GNSS + IMU flight whose fixes are `offset(t)` m north of the truth keeps at least
+/// 99 % of its valid poses after `from_s` within 3σ, and has more than `min_poses`.
+fn assert_covered_with_offset_north(
+    seed: u64,
+    duration_s: f64,
+    from_s: f64,
+    offset: impl Fn(f64) -> f64,
+    min_poses: usize,
+) {
+    let score = gnss_edited_flight(seed, duration_s, from_s, |g, t| {
+        g.lat_deg += offset(t) / 111_000.0;
     });
     println!("{score:?}");
-    assert!(score.poses > 200, "{score:?}");
+    assert!(score.poses > min_poses, "{score:?}");
     assert!(score.within_3_sigma >= 0.99, "{score:?}");
 }
 
@@ -1345,22 +1344,37 @@ fn a_long_refusal_is_not_settled_by_the_fix_that_ends_it() {
 /// 10.7 m off with σ 1 m, 1 099 poses beyond 5σ).
 #[test]
 fn a_reset_to_a_receiver_refused_before_its_outage_is_as_uncertain_as_the_jump() {
-    let (score, _, _) = gnss_imu_flight_scored(sim_cfg(Mode::Ekf), 6, 160.0, 48.0, |s, tr| {
-        let mut s = s.clone();
-        if let SensorData::Gnss(g) = &mut s.data {
-            if tr.t >= 20.0 {
-                g.lat_deg += 8.0 / 111_000.0;
-            }
-            if (40.0..48.0).contains(&tr.t) {
-                g.fix = crate::sample::GnssFixType::NoFix;
-            }
+    let score = gnss_edited_flight(6, 160.0, 48.0, |g, t| {
+        if t >= 20.0 {
+            g.lat_deg += 8.0 / 111_000.0;
         }
-        vec![s]
+        if (40.0..48.0).contains(&t) {
+            g.fix = crate::sample::GnssFixType::NoFix;
+        }
     });
     println!("{score:?}");
     // Invalid while the doubt is beyond the alert limit, valid again as it fades.
     assert!(score.poses > 100, "{score:?}");
     assert!(score.within_3_sigma >= 0.99, "{score:?}");
+}
+
+/// [`gnss_imu_flight_scored`] with the default configuration and every GNSS fix
+/// edited by `edit` (the fix, its time in s).
+fn gnss_edited_flight(
+    seed: u64,
+    duration_s: f64,
+    from_s: f64,
+    edit: impl Fn(&mut crate::sample::GnssFix, f64),
+) -> FlightScore {
+    let (score, _, _) =
+        gnss_imu_flight_scored(sim_cfg(Mode::Ekf), seed, duration_s, from_s, |s, tr| {
+            let mut s = s.clone();
+            if let SensorData::Gnss(g) = &mut s.data {
+                edit(g, tr.t);
+            }
+            vec![s]
+        });
+    score
 }
 
 /// The DEMO streams of some kinds only.
