@@ -17,10 +17,6 @@ use nalgebra::{Matrix3, Vector3};
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct GnssState {
     pub origin: Option<LocalEnu>,
-    /// The variance of the fix the origin was placed at, whole and its slow part, per
-    /// axis: a filter that starts later (on its gear, from a camera) starts there, and
-    /// is as far from it as that fix was from the truth.
-    pub origin_var: Option<(Vector3<f64>, Vector3<f64>)>,
     /// Last ENU position per source (for the frame deltas).
     pub last: SourceMap<(i64, Vector3<f64>)>,
     /// Last time a GNSS fix was fused, µs.
@@ -95,7 +91,6 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         }
     };
     let bias_std = bias_std(&cov, cfg);
-    let slow_var = bias_std.component_mul(&bias_std);
     // Control: origin.
     let origin = match core.gnss.origin {
         Some(o) => o,
@@ -115,10 +110,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
                     core.wrls.add_frame_uncertainty(&cov);
                     LocalEnu::new(lat, lon, alt)
                 }
-                None => {
-                    core.gnss.origin_var = Some((cov.diagonal(), slow_var));
-                    at_fix
-                }
+                None => at_fix,
             };
             core.gnss.origin = Some(origin);
             core.event(
@@ -178,6 +170,12 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         if core.att.known() {
             let v_var = vel.map(|_| Vector3::repeat(vel_noise * vel_noise));
             core.initialise(t, source, enu, cov.diagonal(), vel, v_var, ctx);
+            // Started at this fix: its error is the fix's, whose slow part the bias
+            // states hold (a source's kind is known only once it has been fused).
+            let slow_var = bias_std.component_mul(&bias_std);
+            if let Some(bank) = core.ekf.as_mut() {
+                bank.each(|e| e.tie_to_gnss_bias(slow_var));
+            }
         }
         return;
     }

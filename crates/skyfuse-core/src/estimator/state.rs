@@ -839,14 +839,6 @@ impl Core {
     ) {
         let cfg = ctx.cfg;
         let vv = vel_var.unwrap_or_else(|| Vector3::repeat(cfg.init_vel_var));
-        let from_fix = self.stats.get(source).is_some_and(|s| s.kind == "gnss");
-        // Started after a GNSS fix placed the origin (on its gear, from a camera): where
-        // the vehicle is in that frame is as uncertain as the fix, whatever the starting
-        // source's own σ (1 cm on the gear).
-        let pos_var = match self.gnss.origin_var {
-            Some((fix_var, _)) if !from_fix => pos_var.sup(&fix_var),
-            _ => pos_var,
-        };
         if !self.mode_wrls {
             let mut ekf = Ekf::new(
                 pos,
@@ -863,13 +855,10 @@ impl Core {
             let (b, bv) = (cfg.gnss_bias_std_m, cfg.gnss_bias_std_v_m);
             let bias = self.gnss_bias_prior.unwrap_or(Vector3::new(b, b, bv));
             ekf.set_gnss_bias_model(bias, cfg.gnss_bias_tau_s);
-            if from_fix || self.gnss.origin_var.is_some() {
-                // Its error is that fix's, whose slow part the bias states hold.
-                ekf.tie_to_gnss_bias(bias.component_mul(&bias));
-            }
             ekf.delay_rw = cfg.delay_rw;
             ekf.align_yaw_rw = super::odometry::VO_YAW_RW;
-            let geographic = from_fix || self.gnss.origin.is_some();
+            let geographic = self.stats.get(source).is_some_and(|s| s.kind == "gnss")
+                || self.gnss.origin.is_some();
             // Against north (GNSS) the heading is as good as the compass; in a frame of
             // its own that starts at the take-off heading, as good as that instant's.
             let yaw_prior = if geographic {
