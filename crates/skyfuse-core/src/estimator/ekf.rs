@@ -731,8 +731,7 @@ impl Ekf {
         self.symmetrise();
     }
 
-    /// The position was just taken from a GNSS fix (the filter started at one, or after
-    /// one placed the origin): its error is the fix's, whose slow part (variance
+    /// The filter was just started at a GNSS fix: its position's error is the fix's, whose slow part (variance
     /// `slow_var` per axis) is what the bias states hold, so `cov(p, b) = −P_bb` as in
     /// [`Self::reset_pos_vel_through_bias`]. Without it one fix counted twice, as the
     /// position's prior and as the bias's, and the first minute's fixes "separated"
@@ -755,6 +754,15 @@ impl Ekf {
             self.p[(b, p)] = c;
         }
         self.symmetrise();
+    }
+
+    /// The GNSS slow error is at least `std` uncertain per axis (a receiver that may be
+    /// as wrong as a jump the filter was reset over): its variance only grows.
+    pub fn widen_gnss_bias(&mut self, std: &Vector3<f64>) {
+        for i in 0..3 {
+            let k = IDX_BG + i;
+            self.p[(k, k)] = self.p[(k, k)].max(std[i] * std[i]);
+        }
     }
 
     /// The frame's heading became uncertain by `var` (rad²): a frame that started at

@@ -187,8 +187,8 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     let lost =
         core.unaided_since.is_some() || core.ground.last_h_aiding.is_none_or(|l| t - l > timeout);
     // A receiver whose positions the gate refused for `reject_reset_s` (multipath coming
-    // in looks exactly so; or the estimate drifted) and that passes again, or is reset
-    // to: which of the two was wrong nobody knows.
+    // in looks exactly so; or the estimate drifted) and that is reset to after an
+    // outage: which of the two was wrong nobody knows.
     let refused_long = core
         .gnss
         .refused_since
@@ -198,11 +198,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         .is_some_and(|since| t - since >= (cfg.reject_reset_s * 1e6) as i64);
     if lost && core.mode_ekf_direct {
         if let Some(bank) = core.ekf.as_mut() {
-            let bias = Vector3::new(
-                bank.x[super::ekf::IDX_BG],
-                bank.x[super::ekf::IDX_BG + 1],
-                bank.x[super::ekf::IDX_BG + 2],
-            );
+            let bias = bank.gnss_bias();
             let from = bank.pos();
             let v_var = vel_noise * vel_noise;
             if refused_long {
@@ -215,10 +211,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
                     .sup(&core.gnss.doubt_at(source, t, cfg.gnss_bias_tau_s));
                 bank.each(|ekf| {
                     ekf.gnss_bias_std = ekf.gnss_bias_std.sup(&doubt);
-                    for i in 0..3 {
-                        let k = super::ekf::IDX_BG + i;
-                        ekf.p[(k, k)] = ekf.p[(k, k)].max(doubt[i] * doubt[i]);
-                    }
+                    ekf.widen_gnss_bias(&doubt);
                 });
                 *core.gnss.doubt.get_or_insert_with(source, || None) = Some((t, doubt));
             }

@@ -509,12 +509,7 @@ impl Core {
         // large as the jump (multipath that came in over seconds looks exactly so),
         // and stays as uncertain until the fixes have shown otherwise.
         if self.stats.get(source).is_some_and(|s| s.kind == "gnss") {
-            bank.each(|e| {
-                for i in 0..3 {
-                    let k = ekf::IDX_BG + i;
-                    e.p[(k, k)] = e.p[(k, k)].max(moved[i] * moved[i]);
-                }
-            });
+            bank.each(|e| e.widen_gnss_bias(&moved));
         }
         self.reset_counter = self.reset_counter.wrapping_add(1);
         let until = t + (cfg.reset_converge_s * 1e6) as i64;
