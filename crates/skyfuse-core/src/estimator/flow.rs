@@ -371,14 +371,17 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     calibration_sample(core, ctx, t, source, &fv);
     if !core.initialised() {
         if core.att.known() {
-            // Started by the flow, so in the air: its height (with the reading's error)
-            // and its horizontal velocity; how fast the vehicle climbs nobody knows.
+            // Started by the flow, so in the air: its height (with the reading's error,
+            // and the climb since the reading: up to its delay times a climb rate
+            // nobody knows yet) and its horizontal velocity.
             let ct = cos_tilt(&core.att.q);
             let h = height * ct;
             let var = Vector3::new(
                 cfg.init_pos_var,
                 cfg.init_pos_var,
-                cfg.init_pos_var + height_var * ct * ct,
+                cfg.init_pos_var
+                    + height_var * ct * ct
+                    + (cfg.delay_std_s * IN_FLIGHT_VZ_STD).powi(2),
             );
             let v = Vector3::new(v_nav.x, v_nav.y, 0.0);
             let vv = Vector3::new(
