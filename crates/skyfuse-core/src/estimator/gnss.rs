@@ -21,7 +21,8 @@ pub struct GnssState {
     pub last: SourceMap<(i64, Vector3<f64>)>,
     /// Last time a GNSS fix was fused, µs.
     pub last_fused: Option<i64>,
-    /// Per source, since when its positions have been refused (none accepted since), µs.
+    /// Per source, since when its positions have been refused (none accepted since), µs:
+    /// by the gate, or by the innovation test while health held it out.
     pub refused_since: SourceMap<Option<i64>>,
     /// Per source, how far off it may be beyond what it reports, 1σ per axis (m), and
     /// since when (µs): set when it was reset to after a long refusal, fading over the
@@ -201,11 +202,12 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
             let bias = bank.gnss_bias();
             let from = bank.pos();
             let v_var = vel_noise * vel_noise;
+            let jump = enu - bias - from;
             if refused_long {
-                // Refused up to the outage: its slow error may be the whole jump, and
-                // the position taken through it is that uncertain (randomised draw 86:
-                // reset 10.7 m onto a multipath offset with σ 1 m).
-                let jump = enu - bias - from;
+                // Refused up to the outage (by the gate, or by the test while health
+                // held it out): its slow error may be the whole jump, and the position
+                // taken through it is that uncertain (randomised draw 86: reset 10.7 m
+                // onto a multipath offset with σ 1 m).
                 let doubt = jump
                     .abs()
                     .sup(&core.gnss.doubt_at(source, t, cfg.gnss_bias_tau_s));
@@ -224,7 +226,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
                 .unaided_since
                 .or(core.last_aiding)
                 .map(|l| (t - l) as f64 * 1e-6);
-            let jump = (enu - bias - from).norm();
+            let jump = jump.norm();
             core.event(
                 t,
                 Some(source),
@@ -286,7 +288,18 @@ pub fn probe(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) {
         return;
     }
     let enu = origin.to_enu(fix.lat_deg, fix.lon_deg, fix.alt_m);
-    core.probe_position(t, source, "gnss", enu, &cov, ctx);
+    // Beyond the gate while held out is a refusal like the gate's own: a reset onto
+    // it later cannot tell multipath from drift (randomised draw 967: held out 17 s
+    // while multipath ran in to 14 m, then reset onto with σ 0.6 m).
+    if core
+        .probe_position(t, source, "gnss", enu, &cov, ctx)
+        .is_some_and(|ratio| ratio > 1.0)
+    {
+        core.gnss
+            .refused_since
+            .get_or_insert_with(source, || None)
+            .get_or_insert(t);
+    }
 }
 
 #[cfg(test)]

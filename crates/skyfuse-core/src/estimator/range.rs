@@ -4,8 +4,9 @@
 //! reading at a limit is a clamp, not a distance), not flagged invalid by the sensor
 //! (a reading at or below the minimum still says "on the ground"), pointing down, tilt
 //! below `range_max_tilt_rad`, and good for `range_quality_hold_ms` since the last
-//! reading flagged invalid or at/beyond the maximum (EKF2's quality hysteresis: a sonar
-//! out of range hears stray echoes, and one of them is no height). Control: kept as the flow's height; fused when the filter is
+//! reading flagged invalid or at/beyond the maximum, or since a gap of as long in its
+//! readings (EKF2's quality hysteresis: a sonar out of range hears stray echoes, and
+//! one of them is no height). Control: kept as the flow's height; fused when the filter is
 //! initialised. Terrain reset (EKF2's `resetTerrainToRng`), when the reading fails the
 //! innovation gate and either follows readings at or below the minimum (the vehicle
 //! left the surface it stood on; the ground constraint's height no longer applies),
@@ -61,6 +62,21 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, r: &Range) {
     let sc = cfg.source(source);
     let min = sc.min_m.or(r.min_m).unwrap_or(DEFAULT_RANGE_MIN_M);
     let max = sc.max_m.or(r.max_m).unwrap_or(DEFAULT_RANGE_MAX_M);
+    let hold = (cfg.range_quality_hold_ms * 1000.0) as i64;
+    // A gap in its readings (a dropout, health holding it out) restarts the hysteresis
+    // as a bad reading does: what a sonar above its range hears first after one is as
+    // likely an echo (randomised draw 480: the first reading after a 7 s stop, 0.5 m at
+    // 10.5 m, moved the terrain 10 m and scaled the flow by it; the flow, refused by
+    // the main filter, was taken by the one without the camera, and the camera was
+    // excluded for it).
+    let gap = core
+        .stats
+        .get(source)
+        .and_then(|st| st.last_time_us)
+        .is_none_or(|last| t - last > hold);
+    if gap {
+        core.range_bad.put(source, t);
+    }
     let down = r.orientation.is_none_or(|o| o == MAV_SENSOR_DOWN);
     if down && r.distance_m.is_finite() && r.distance_m <= min {
         // At or below its minimum a downward range finder is on its gear (or closer to
@@ -77,7 +93,6 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, r: &Range) {
         core.reject(t, source, why, ctx);
         return;
     }
-    let hold = (cfg.range_quality_hold_ms * 1000.0) as i64;
     if core
         .range_bad
         .get(source)

@@ -604,19 +604,16 @@ impl Core {
         z: Vector3<f64>,
         r: &Matrix3<f64>,
         ctx: &Ctx,
-    ) {
-        let Some(m) = self.position_measurement(kind, z, r, None) else {
-            return;
-        };
-        let Some(ekf) = self.ekf.as_ref() else {
-            return;
-        };
+    ) -> Option<f64> {
+        let m = self.position_measurement(kind, z, r, None)?;
+        let ekf = self.ekf.as_ref()?;
         let out = ekf.innovation_test(&m, ctx.gate(m.rows()));
         let st = self.stat(source);
         st.count_test(t, out.test_ratio);
         st.kind = kind;
         st.test_ratio = out.test_ratio;
         st.set_innovation(&out);
+        Some(out.test_ratio)
     }
 
     /// Fuse the first `rows` components (east, north[, up]) of a world velocity.
