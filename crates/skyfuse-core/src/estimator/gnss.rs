@@ -38,6 +38,14 @@ impl GnssState {
         }
     }
 
+    /// A position of `source` was refused at `t` (by the gate, or by the test while
+    /// health held it out): its refusals run from the first of them.
+    fn refused(&mut self, source: &str, t: i64) {
+        self.refused_since
+            .get_or_insert_with(source, || None)
+            .get_or_insert(t);
+    }
+
     /// The doubt on `source`'s slow error at `t`: as large as it was found off, fading
     /// with the slow error's own correlation time `tau_s`.
     pub fn doubt_at(&self, source: &str, t: i64, tau_s: f64) -> Vector3<f64> {
@@ -254,10 +262,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         core.unaided_since = None;
         core.gnss.passed(source);
     } else if core.initialised() {
-        core.gnss
-            .refused_since
-            .get_or_insert_with(source, || None)
-            .get_or_insert(t);
+        core.gnss.refused(source, t);
     }
     if let Some(v) = vel {
         let r = Matrix3::identity() * (vel_noise * vel_noise);
@@ -295,10 +300,7 @@ pub fn probe(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) {
         .probe_position(t, source, "gnss", enu, &cov, ctx)
         .is_some_and(|ratio| ratio > 1.0)
     {
-        core.gnss
-            .refused_since
-            .get_or_insert_with(source, || None)
-            .get_or_insert(t);
+        core.gnss.refused(source, t);
     }
 }
 
