@@ -139,3 +139,42 @@ fn a_sub_filter_is_tested_only_from_a_solution() {
         assert_consistent(i);
     }
 }
+
+/// A lone receiver back from an outage, onto an estimate metres uncertain, with nothing
+/// else to check where it puts the vehicle: after 46 s without a fix on a GNSS-only
+/// figure-eight (draw 785) the reset took a fix 14 m off in multipath with σ 1.6 m
+/// (586 poses beyond 5σ), and after 75 s on the flow alone (draw 659) a fix 3.5 m off
+/// was fused with σ 0.5 m once the flow went dark (588). The receiver's unreported
+/// error (the protection level's GNSS fault allowance) is what such a fix brings in
+/// unchecked: it rides in as doubt on the receiver's slow error.
+#[test]
+fn a_lone_fix_back_from_an_outage_carries_the_error_nothing_checks() {
+    for i in [785, 659] {
+        run_without_failures(i);
+    }
+}
+
+/// A receiver that the gate and the separation test were refusing, the only other
+/// horizontal source gone for a moment: 0.1 s after the flow went dark the estimate
+/// (1 m off) was reset 10 m onto the receiver's multipath (draw 238), and 1.2 s after
+/// a flow stopped, 14 m (draw 334). The IMU had barely moved the estimate, and what
+/// said the receiver was wrong still stood: it is reset to only after
+/// `reject_reset_s` without horizontal aiding, as a refused source, with the jump as
+/// doubt.
+#[test]
+fn a_refused_receiver_is_not_reset_to_after_a_short_spell() {
+    for i in [238, 334] {
+        run_without_failures(i);
+    }
+}
+
+/// The pose right after a reset or an exclusion carries the protection level of the
+/// estimate it is, not the one of up to 50 ms before: a camera excluded at take-off
+/// (draw 572) and a reset onto a receiver (draw 334) each sent poses valid on the
+/// level of the solution they had just replaced (3 and 1 beyond it, up to 3.8×).
+#[test]
+fn the_pose_after_a_reset_carries_its_own_protection_level() {
+    for i in [572, 334] {
+        assert_consistent(i);
+    }
+}

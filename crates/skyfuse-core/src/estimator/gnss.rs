@@ -8,6 +8,8 @@
 //! velocity where the message has one.
 
 use super::config::EstimatorConfig;
+use super::ekf::IDX_P;
+use super::integrity;
 use super::{Core, Ctx, DebugTopic, Event};
 use crate::geo::LocalEnu;
 use crate::sample::{GnssFix, GnssFixType};
@@ -188,6 +190,25 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         }
         return;
     }
+    // What this fix teaches the estimate of where it is, it teaches unchecked: with no
+    // second receiver, nothing else measures the absolute position, and the error the
+    // receiver does not report (multipath; `[integrity] gnss_fault_horizontal_m`) rides
+    // in with it and stays until it changes. A fix after an outage, onto an estimate
+    // metres uncertain, carries that allowance as doubt on its slow error, so that the
+    // σ sent says it (randomised draws 785 and 659: reset onto 14 m of multipath, and
+    // fused 3.5 m off after a 75 s outage, both sent with σ 0.5-1.6 m); a fix onto an
+    // estimate that already knew where it was teaches it nothing, and adds nothing.
+    let taught = unchecked_doubt(core, ctx, t, source, &cov);
+    if taught != Vector3::zeros() {
+        let doubt = taught.sup(&core.gnss.doubt_at(source, t, cfg.gnss_bias_tau_s));
+        if let Some(bank) = core.ekf.as_mut() {
+            bank.each(|ekf| {
+                ekf.gnss_bias_std = ekf.gnss_bias_std.sup(&doubt);
+                ekf.widen_gnss_bias(&doubt);
+            });
+        }
+        *core.gnss.doubt.get_or_insert_with(source, || None) = Some((t, doubt));
+    }
     // Control: after a spell without any position source the estimate has drifted by an
     // unknown amount; the first fix resets the position to it (PX4's reset_pos_to_gps)
     // rather than being gated out, and the reset counter tells the autopilot.
@@ -198,14 +219,20 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     // A receiver whose positions the gate refused for `reject_reset_s` (multipath coming
     // in looks exactly so; or the estimate drifted) and that is reset to after an
     // outage: which of the two was wrong nobody knows.
-    let refused_long = core
-        .gnss
-        .refused_since
-        .get(source)
-        .copied()
-        .flatten()
-        .is_some_and(|since| t - since >= (cfg.reject_reset_s * 1e6) as i64);
-    if lost && core.mode_ekf_direct {
+    let reject_reset = (cfg.reject_reset_s * 1e6) as i64;
+    let refused_since = core.gnss.refused_since.get(source).copied().flatten();
+    let excluded = core.integrity.is_excluded(source);
+    // Excluded by the integrity monitor is refused too: it disagreed with the rest.
+    let refused_long = excluded || refused_since.is_some_and(|since| t - since >= reject_reset);
+    // A receiver the estimate was refusing is not reset to after a short spell: the IMU
+    // has barely moved the estimate since, and what said the receiver was wrong still
+    // stands; after `reject_reset_s` without horizontal aiding it is (the lock-out
+    // rule). Randomised draws 334 and 238: a flow gone for 1.2 s, the estimate (1.4 m
+    // off, σ 2 m) was reset 14 m and 10 m onto the receiver's multipath that the gate,
+    // and the separation test, had refused for seconds (integrity failures, 4 poses).
+    let spell = core.ground.last_h_aiding.map_or(i64::MAX, |l| t - l);
+    let short_spell = (refused_since.is_some() || excluded) && spell < reject_reset;
+    if lost && !short_spell && core.mode_ekf_direct {
         if let Some(bank) = core.ekf.as_mut() {
             let bias = bank.gnss_bias();
             let from = bank.pos();
@@ -270,6 +297,36 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         let rows = if fix.velocity_up_known { 3 } else { 2 };
         core.fuse_world_velocity(t, source, v, &r, rows, ctx);
     }
+}
+
+/// The doubt a fix of `source` (covariance `cov`) brings in unchecked, 1σ per axis (m):
+/// on the horizontal axes, the part of the estimate's uncertainty it removes, at most the
+/// fault allowance as a 2σ bound per axis; none while another receiver checks it, nor
+/// while GNSS positions are being fused.
+fn unchecked_doubt(
+    core: &Core,
+    ctx: &Ctx,
+    t: i64,
+    source: &str,
+    cov: &Matrix3<f64>,
+) -> Vector3<f64> {
+    let cfg = ctx.cfg;
+    let Some(bank) = core.ekf.as_ref() else {
+        return Vector3::zeros();
+    };
+    // Only a receiver back from an outage (or its first fix): one fused all along holds
+    // what the estimate knows, and its slow error is the bias state's to track.
+    let timeout = (cfg.aiding_timeout_ms * 1000.0) as i64;
+    let window = integrity::channel_window(cfg);
+    if core.gnss.last_fused.is_some_and(|l| t - l <= timeout)
+        || integrity::gnss_receivers(core, t, true, window, Some(source)) > 0
+    {
+        return Vector3::zeros();
+    }
+    let cap = cfg.integrity.gnss_fault_horizontal_m / (2.0 * std::f64::consts::SQRT_2);
+    let prior = bank.main().cov3(IDX_P);
+    let taught = |a: usize| (prior[(a, a)] - cov[(a, a)]).max(0.0).sqrt().min(cap);
+    Vector3::new(taught(0), taught(1), 0.0)
 }
 
 /// 1σ per axis of the slow part of a fix's error whose covariance is `cov`.

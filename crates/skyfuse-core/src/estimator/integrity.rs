@@ -232,6 +232,8 @@ pub struct IntegrityState {
     pub channels: SourceMap<SourceChannels>,
     pub excluded: SourceMap<Excluded>,
     pub last_check: Option<i64>,
+    /// The reset counter at the last check.
+    pub checked_reset: u8,
     pub tests: Vec<SeparationTest>,
     /// Protection levels of the last check (horizontal, vertical), m.
     pub hpl: f64,
@@ -431,16 +433,21 @@ pub(super) fn excluded_sample(core: &mut Core, ctx: &Ctx, t: i64, source: &str, 
 /// Run the tests (at most every [`CHECK_EVERY_US`]): exclude a faulty source, restart
 /// quiet sub-filters, and set the protection levels.
 pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
-    if core
-        .integrity
-        .last_check
-        .is_some_and(|l| t - l < CHECK_EVERY_US && t >= l)
+    // Not held back after a reset: the protection level of the estimate before it is
+    // not this one's (randomised draw 334: a pose sent valid 14 m off, on the level of
+    // 20 ms before the reset that moved it there).
+    if core.integrity.checked_reset == core.reset_counter
+        && core
+            .integrity
+            .last_check
+            .is_some_and(|l| t - l < CHECK_EVERY_US && t >= l)
     {
         return;
     }
     core.integrity.last_check = Some(t);
+    core.integrity.checked_reset = core.reset_counter;
     let cfg = &ctx.cfg.integrity;
-    let window = ((ctx.cfg.aiding_timeout_ms * 1000.0) as i64).max(CHANNEL_RECENT_US);
+    let window = channel_window(ctx.cfg);
     let Some(bank) = core.ekf.as_ref() else {
         core.integrity.tests.clear();
         return;
@@ -562,28 +569,11 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
     }
     // A GNSS that no second receiver checks: its unreported error (see
     // `DEFAULT_GNSS_FAULT_HORIZONTAL_M`) on the channels it holds.
-    let gnss = |horizontal: bool| {
-        let receivers = core
-            .integrity
-            .channels
-            .iter()
-            .filter(|(s, c)| {
-                !core.integrity.is_excluded(s)
-                    && core
-                        .stats
-                        .get(s.as_str())
-                        .is_some_and(|st| st.kind == "gnss")
-                    && if horizontal { c.horizontal } else { c.vertical }
-                        .is_some_and(|l| t - l <= window)
-            })
-            .count();
-        receivers == 1
-    };
-    if gnss(true) {
+    if gnss_receivers(core, t, true, window, None) == 1 {
         pl.x += cfg.gnss_fault_horizontal_m / std::f64::consts::SQRT_2;
         pl.y += cfg.gnss_fault_horizontal_m / std::f64::consts::SQRT_2;
     }
-    if gnss(false) {
+    if gnss_receivers(core, t, false, window, None) == 1 {
         pl.z += cfg.gnss_fault_vertical_m;
     }
     if !restart.is_empty() {
@@ -628,6 +618,36 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
         }
     }
     core.integrity.tests = tests;
+}
+
+/// How long a source counts as informing a channel after it last did, µs.
+pub(super) fn channel_window(cfg: &super::config::EstimatorConfig) -> i64 {
+    ((cfg.aiding_timeout_ms * 1000.0) as i64).max(CHANNEL_RECENT_US)
+}
+
+/// The GNSS receivers (other than `except`) not excluded that informed the channel
+/// (horizontal, else vertical) within `window` of `t`, µs.
+pub(super) fn gnss_receivers(
+    core: &Core,
+    t: i64,
+    horizontal: bool,
+    window: i64,
+    except: Option<&str>,
+) -> usize {
+    core.integrity
+        .channels
+        .iter()
+        .filter(|(s, c)| {
+            except != Some(s.as_str())
+                && !core.integrity.is_excluded(s)
+                && core
+                    .stats
+                    .get(s.as_str())
+                    .is_some_and(|st| st.kind == "gnss")
+                && if horizontal { c.horizontal } else { c.vertical }
+                    .is_some_and(|l| t - l <= window)
+        })
+        .count()
 }
 
 /// Exclude the source of the failed `test`: its sub-filter's solution becomes the main
