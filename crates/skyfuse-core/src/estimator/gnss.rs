@@ -224,13 +224,22 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     let excluded = core.integrity.is_excluded(source);
     // Excluded by the integrity monitor is refused too: it disagreed with the rest.
     let refused_long = excluded || refused_since.is_some_and(|since| t - since >= reject_reset);
-    // A receiver the estimate was refusing is not reset to after a short spell: the IMU
-    // has barely moved the estimate since, and what said the receiver was wrong still
-    // stands; after `reject_reset_s` without horizontal aiding it is (the lock-out
-    // rule). Randomised draws 334 and 238: a flow gone for 1.2 s, the estimate (1.4 m
-    // off, σ 2 m) was reset 14 m and 10 m onto the receiver's multipath that the gate,
-    // and the separation test, had refused for seconds (integrity failures, 4 poses).
-    let spell = core.ground.last_h_aiding.map_or(i64::MAX, |l| t - l);
+    // A receiver the estimate was refusing while another source held the horizontal is
+    // not reset to a moment after that source is gone: the IMU has barely moved the
+    // estimate since, and what said the receiver was wrong still stands; after
+    // `reject_reset_s` without that source it is. Randomised draws 334 and 238: a flow
+    // gone for 1.2 s, the estimate (1.4 m off, σ 2 m) was reset 14 m and 10 m onto the
+    // receiver's multipath that the gate, and the separation test, had refused for
+    // seconds (integrity failures, 4 poses). A receiver alone all along is reset to as
+    // before: its refusals are the estimate's own drift as likely (the lock-out).
+    let others = core
+        .integrity
+        .channels
+        .iter()
+        .filter(|(s, _)| s.as_str() != source)
+        .filter_map(|(_, c)| c.horizontal)
+        .max();
+    let spell = others.map_or(i64::MAX, |l| t - l);
     let short_spell = (refused_since.is_some() || excluded) && spell < reject_reset;
     if lost && !short_spell && core.mode_ekf_direct {
         if let Some(bank) = core.ekf.as_mut() {
