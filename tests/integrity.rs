@@ -158,9 +158,9 @@ fn a_lone_fix_back_from_an_outage_carries_the_error_nothing_checks() {
 /// horizontal source gone for a moment: 0.1 s after the flow went dark the estimate
 /// (1 m off) was reset 10 m onto the receiver's multipath (draw 238), and 1.2 s after
 /// a flow stopped, 14 m (draw 334). The IMU had barely moved the estimate, and what
-/// said the receiver was wrong still stood: it is reset to only after
-/// `reject_reset_s` without horizontal aiding, as a refused source, with the jump as
-/// doubt.
+/// said the receiver was wrong still stood: it is reset to only once the source that
+/// held the estimate has been gone for `reject_reset_s`, as a refused source, with the
+/// jump as doubt.
 #[test]
 fn a_refused_receiver_is_not_reset_to_after_a_short_spell() {
     for i in [238, 334] {

@@ -1297,7 +1297,6 @@ mod tests {
         assert!((both.x[c] - pc / s * 2.0).abs() < 1e-12);
     }
 
-    /// At rest at the origin, unit position and velocity variances, no bias.
     /// A frame anchored to north: the heading's new doubt is the alignments' too, the
     /// same angle, so what a camera says of the heading against its own alignment (ψ − ε)
     /// is as sure as before, while each of the two is as unsure as the frame.
@@ -1320,6 +1319,7 @@ mod tests {
         );
     }
 
+    /// At rest at the origin, unit position and velocity variances, no bias.
     fn unit_filter() -> Ekf {
         Ekf::new(
             Vector3::zeros(),

@@ -200,14 +200,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     // estimate that already knew where it was teaches it nothing, and adds nothing.
     let taught = unchecked_doubt(core, ctx, t, source, &cov);
     if taught != Vector3::zeros() {
-        let doubt = taught.sup(&core.gnss.doubt_at(source, t, cfg.gnss_bias_tau_s));
-        if let Some(bank) = core.ekf.as_mut() {
-            bank.each(|ekf| {
-                ekf.gnss_bias_std = ekf.gnss_bias_std.sup(&doubt);
-                ekf.widen_gnss_bias(&doubt);
-            });
-        }
-        *core.gnss.doubt.get_or_insert_with(source, || None) = Some((t, doubt));
+        carry_doubt(core, source, t, &taught, cfg.gnss_bias_tau_s);
     }
     // Control: after a spell without any position source the estimate has drifted by an
     // unknown amount; the first fix resets the position to it (PX4's reset_pos_to_gps)
@@ -242,26 +235,18 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     let spell = others.map_or(i64::MAX, |l| t - l);
     let short_spell = (refused_since.is_some() || excluded) && spell < reject_reset;
     if lost && !short_spell && core.mode_ekf_direct {
-        if let Some(bank) = core.ekf.as_mut() {
-            let bias = bank.gnss_bias();
-            let from = bank.pos();
+        if let Some(jump) = core.ekf.as_ref().map(|b| enu - b.gnss_bias() - b.pos()) {
             let v_var = vel_noise * vel_noise;
-            let jump = enu - bias - from;
             if refused_long {
                 // Refused up to the outage (by the gate, or by the test while health
                 // held it out): its slow error may be the whole jump, and the position
                 // taken through it is that uncertain (randomised draw 86: reset 10.7 m
                 // onto a multipath offset with σ 1 m).
-                let doubt = jump
-                    .abs()
-                    .sup(&core.gnss.doubt_at(source, t, cfg.gnss_bias_tau_s));
-                bank.each(|ekf| {
-                    ekf.gnss_bias_std = ekf.gnss_bias_std.sup(&doubt);
-                    ekf.widen_gnss_bias(&doubt);
-                });
-                *core.gnss.doubt.get_or_insert_with(source, || None) = Some((t, doubt));
+                carry_doubt(core, source, t, &jump.abs(), cfg.gnss_bias_tau_s);
             }
-            bank.each(|ekf| ekf.reset_pos_vel_through_bias(enu, vel, cov.diagonal(), v_var));
+            if let Some(bank) = core.ekf.as_mut() {
+                bank.each(|ekf| ekf.reset_pos_vel_through_bias(enu, vel, cov.diagonal(), v_var));
+            }
             for st in core.odom.values_mut() {
                 st.align = None;
             }
@@ -306,6 +291,20 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
         let rows = if fix.velocity_up_known { 3 } else { 2 };
         core.fuse_world_velocity(t, source, v, &r, rows, ctx);
     }
+}
+
+/// `source`'s slow error is at least `at_least` uncertain (1σ per axis, m), or what its
+/// doubt still says: in every filter's bias state and its model, and remembered to fade
+/// over `tau_s` (see [`GnssState::doubt_at`]).
+fn carry_doubt(core: &mut Core, source: &str, t: i64, at_least: &Vector3<f64>, tau_s: f64) {
+    let doubt = at_least.sup(&core.gnss.doubt_at(source, t, tau_s));
+    if let Some(bank) = core.ekf.as_mut() {
+        bank.each(|ekf| {
+            ekf.gnss_bias_std = ekf.gnss_bias_std.sup(&doubt);
+            ekf.widen_gnss_bias(&doubt);
+        });
+    }
+    *core.gnss.doubt.get_or_insert_with(source, || None) = Some((t, doubt));
 }
 
 /// The doubt a fix of `source` (covariance `cov`) brings in unchecked, 1σ per axis (m):
