@@ -14,7 +14,7 @@
 
 use super::attitude::{cos_tilt, yaw_of};
 use super::imu::Lpf3;
-use super::{Core, Ctx, DebugTopic, Event};
+use super::{BodyVelocity, Core, Ctx, DebugTopic, Event};
 use crate::event::CalibrationResult;
 use crate::sample::OpticalFlow;
 use nalgebra::{Matrix3, UnitQuaternion, Vector2, Vector3};
@@ -182,6 +182,19 @@ fn tof_limits(sc: &super::config::SourceConfig) -> (f64, f64) {
     )
 }
 
+/// The height that scales a flow sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct FlowHeight {
+    /// Along the body's down axis, m.
+    slant: f64,
+    /// Its variance, m².
+    var: f64,
+    /// The filter's own height above the terrain (vertical, m) when that is what
+    /// scaled it: its error is then the filter's states', carried by the fusion's
+    /// Jacobian (as EKF2 fuses flow on its terrain state), not white noise.
+    estimated: Option<f64>,
+}
+
 /// Height along the body's down axis for the flow and its variance: own ToF, else a
 /// range finder (its age adding to its error), else the fused height above the terrain
 /// over the tilt cosine (with the filter's own uncertainty of it).
@@ -192,17 +205,22 @@ fn flow_height(
     t: i64,
     (lo, hi): (f64, f64),
     f: &OpticalFlow,
-) -> Option<(f64, f64)> {
+) -> Option<FlowHeight> {
     let cfg = ctx.cfg;
     let noise = cfg.range_noise * cfg.range_noise;
+    let measured = |slant, var| FlowHeight {
+        slant,
+        var,
+        estimated: None,
+    };
     if let Some(tof) = &f.tof {
         if tof.distance_m.is_finite() && tof.distance_m > lo && tof.distance_m < hi {
-            return Some((tof.distance_m, noise));
+            return Some(measured(tof.distance_m, noise));
         }
     }
     if let Some((tr, d)) = core.latest_range_at(t) {
         let age = (t - tr).abs() as f64 * 1e-6;
-        return Some((d, noise + (age * HEIGHT_AGE_SPEED).powi(2)));
+        return Some(measured(d, noise + (age * HEIGHT_AGE_SPEED).powi(2)));
     }
     // A range finder at its minimum says the vehicle is on its gear: the fused height
     // (the middle of [0, min]) is no scale for the flow.
@@ -214,7 +232,11 @@ fn flow_height(
     let var = ekf.height_above_terrain_var().max(0.0);
     let h = ekf.height_above_terrain();
     let max_std = FUSED_HEIGHT_MAX_STD.max(FUSED_HEIGHT_MAX_FRACTION * h);
-    (var < max_std * max_std && ct > 0.3 && h > 0.0).then(|| (h / ct, var / (ct * ct)))
+    (var < max_std * max_std && ct > 0.3 && h > 0.0).then(|| FlowHeight {
+        slant: h / ct,
+        var: var / (ct * ct),
+        estimated: Some(h),
+    })
 }
 
 pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow) {
@@ -251,10 +273,11 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
             .last_t = Some(t);
         return;
     }
-    let Some((height, height_var)) = flow_height(core, ctx, t, tof_lim, f) else {
+    let Some(fh) = flow_height(core, ctx, t, tof_lim, f) else {
         core.reject(t, source, "no height for the flow", ctx);
         return;
     };
+    let (height, height_var) = (fh.slant, fh.var);
     // Taken out while this sample works on it (every path puts it back), its key kept.
     let mut st = core
         .flow
@@ -406,13 +429,25 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     if core.flow_cal.state == CalState::Running && core.other_aiding(t, source, ctx) {
         return;
     }
-    let mut r = Matrix3::from_diagonal(&Vector3::new(fv.var.x, fv.var.y, 0.0));
+    // Scaled by the filter's own height, the velocity's error from that height is a
+    // scale the fusion carries in its Jacobian (the flow against the IMU's metric
+    // accelerations then tells the height above the terrain): its noise is the rate's
+    // alone. As white noise on each sample nothing learnt that height above the range
+    // finder: its σ grew with the distance flown until the flow was dropped (at 20 %
+    // of the height) and the estimate coasted (randomised climbs on flow: 11 % valid).
+    let var = match fh.estimated {
+        Some(_) => Vector2::repeat((rate_noise * height).powi(2)),
+        None => fv.var,
+    };
+    let mut r = Matrix3::from_diagonal(&Vector3::new(var.x, var.y, 0.0));
     core.fuse_body_velocity(
         t,
         source,
         Vector3::new(fv.vel_body.x, fv.vel_body.y, 0.0),
         &mut r,
-        2,
+        BodyVelocity::Flow {
+            height_scale: fh.estimated,
+        },
         ctx,
     );
     // The module's ToF as height when no range finder is being fused.

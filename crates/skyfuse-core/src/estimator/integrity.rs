@@ -163,12 +163,21 @@ pub struct Channels {
 }
 
 impl Channels {
-    /// From the core states its Jacobian reads (position, velocity, terrain).
+    /// From the core states its Jacobian reads (position, velocity, terrain). In a row
+    /// that reads a horizontal velocity the height states are a scale (a flow's, by the
+    /// height above the terrain), not a height measured: the vertical channel stays the
+    /// range finder's and the barometer's.
     pub fn of(m: &Measurement) -> Self {
         let mut c = Channels::default();
         for row in 0..m.rows() {
+            let reads_horizontal_velocity = m
+                .jacobian_row(row)
+                .entries()
+                .any(|(k, h)| (k == IDX_V || k == IDX_V + 1) && h.abs() >= CHANNEL_WEIGHT);
             for (k, h) in m.jacobian_row(row).entries() {
-                if h.abs() < CHANNEL_WEIGHT {
+                if h.abs() < CHANNEL_WEIGHT
+                    || (reads_horizontal_velocity && (k == IDX_P + 2 || k == IDX_TERRAIN))
+                {
                     continue;
                 }
                 match k {
@@ -724,6 +733,21 @@ mod tests {
         );
         let r = nalgebra::Matrix3::identity();
         let m = Measurement::of_states(IDX_V, 2, &Vector3::zeros(), &r);
+        assert_eq!(
+            Channels::of(&m),
+            Channels {
+                horizontal: true,
+                vertical: false,
+                position: [false, false],
+            }
+        );
+        // A flow scaled by the filter's own height reads the height states as its
+        // scale: still a horizontal velocity, not a height.
+        let mut m = Measurement::of_states(IDX_V, 2, &Vector3::zeros(), &r);
+        for row in 0..2 {
+            m.set_jacobian(row, IDX_P + 2, -0.5);
+            m.set_jacobian(row, IDX_TERRAIN, 0.5);
+        }
         assert_eq!(
             Channels::of(&m),
             Channels {

@@ -9,9 +9,10 @@ use nalgebra::{DVector, Matrix3, Vector3};
 
 /// Most rows a measurement has (a 3-D position or velocity).
 pub const MAX_ROWS: usize = 3;
-/// Most states one Jacobian row reads (a flow velocity reads the three velocity states
-/// and its source's scale and heading errors).
-const ROW_STATES: usize = 8;
+/// Most states one Jacobian row reads (a flow velocity reads the three velocity states,
+/// its source's scale, heading and delay, the attitude's heading error, and, scaled by
+/// the filter's own height, that height's two states).
+const ROW_STATES: usize = 10;
 
 /// Innovation `y = z − h(x)`, Jacobian `H` (rows × n, sparse) and noise `R`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -27,7 +28,7 @@ pub struct Measurement {
 }
 
 /// Most consider states one measurement has.
-pub const MAX_CONSIDER: usize = 2;
+pub const MAX_CONSIDER: usize = 4;
 
 /// One row of H: its non-zero entries, by state index.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

@@ -73,7 +73,7 @@ use std::sync::Arc;
 use timing::SourceClocks;
 
 pub use crate::event::{EstimatorEvent, Event};
-pub(crate) use state::{Core, Ctx};
+pub(crate) use state::{BodyVelocity, Core, Ctx};
 pub use status::{
     CalibrationStatus, DebugPoint, DebugSeries, DebugTopic, EstimatorStatus, FusedPose,
     IntegrityStatus, Protection, SourceStatus,

@@ -12,7 +12,7 @@
 
 use super::attitude::{wrap_pi, yaw_of};
 use super::ekf::{Measurement, IDX_V};
-use super::{Core, Ctx, DebugTopic, Event};
+use super::{BodyVelocity, Core, Ctx, DebugTopic, Event};
 use crate::sample::Odometry;
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
@@ -320,7 +320,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, o: &Odometry) {
             for i in 0..3 {
                 rv[(i, i)] = rv[(i, i)].max(floor);
             }
-            core.fuse_body_velocity(t, source, vb, &mut rv, 3, ctx);
+            core.fuse_body_velocity(t, source, vb, &mut rv, BodyVelocity::Odometry, ctx);
         }
     }
 }

@@ -27,6 +27,16 @@ const MAX_USED_GAP_US: i64 = 10_000_000;
 /// The longest step the filter predicts in one go, s (see `predict_to`).
 const MAX_PREDICT_STEP_S: f64 = 0.1;
 
+/// What a body-frame velocity comes from (see [`Core::fuse_body_velocity`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum BodyVelocity {
+    /// A flow's two horizontal axes; `height_scale`: the filter's own height above the
+    /// terrain (m) when that is what scaled its rates.
+    Flow { height_scale: Option<f64> },
+    /// An odometry's three axes.
+    Odometry,
+}
+
 /// Read-only context of one processing step.
 pub(crate) struct Ctx<'a> {
     pub cfg: &'a EstimatorConfig,
@@ -658,9 +668,13 @@ impl Core {
         source: &str,
         vb: Vector3<f64>,
         r: &mut Matrix3<f64>,
-        rows: usize,
+        what: BodyVelocity,
         ctx: &Ctx,
     ) {
+        let (rows, height_scale) = match what {
+            BodyVelocity::Flow { height_scale } => (2, height_scale),
+            BodyVelocity::Odometry => (3, None),
+        };
         if !self.mode_ekf_direct {
             if rows == 2 {
                 self.mark_aiding(t, source, "flow");
@@ -728,6 +742,27 @@ impl Core {
                     m.set_innovation(i, vb[i] - pred[i]);
                     m.set_jacobian(i, ekf::IDX_YAW, dpred_dyaw[i]);
                 }
+            }
+        }
+        // A flow scaled by the filter's height above the terrain ĥ reads v·ĥ/(p_z − z_t):
+        // d/dp_z = −h/ĥ, d/dz_t = h/ĥ. Without an IMU's metric accelerations against it
+        // nothing tells a lower vehicle from a slower one (as for the scale error): the
+        // height is then considered, not corrected.
+        if let Some(h_est) = height_scale.filter(|h| *h > 0.0) {
+            for i in 0..rows {
+                let h = match errors {
+                    Some(_) => {
+                        let turned = [pred.x - psi * pred.y, pred.y + psi * pred.x];
+                        (1.0 + k) * turned[i]
+                    }
+                    None => pred[i],
+                };
+                m.set_jacobian(i, ekf::IDX_P + 2, -h / h_est);
+                m.set_jacobian(i, ekf::IDX_TERRAIN, h / h_est);
+            }
+            if !observed {
+                m.consider(ekf::IDX_P + 2);
+                m.consider(ekf::IDX_TERRAIN);
             }
         }
         for i in 0..rows {
