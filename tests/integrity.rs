@@ -208,7 +208,22 @@ fn a_camera_aligned_before_the_first_fix_turns_with_the_frame() {
 /// the flow's own dead reckoning's 7.5 m.
 #[test]
 fn a_climb_on_flow_beyond_the_range_finder_stays_valid() {
-    let i = 472;
+    assert_available_and_consistent(472, 0.8);
+}
+
+/// A climb on flow whose sensor is quieter than EKF2's 0.15 rad/s for any sensor
+/// (draw 927): fused as configured, every sample's noise let the position's σ grow as a
+/// random walk several times the error's, and the pose was invalid on its protection
+/// level for two thirds of the flight (32.7 % valid airborne). The sensor's noise is
+/// learnt from its innovations, down to half the configured σ: 98 % valid, still
+/// inside its bound.
+#[test]
+fn a_quiet_flow_is_fused_as_its_innovations_say() {
+    assert_available_and_consistent(927, 0.8);
+}
+
+/// Draw `i` valid for at least `min_valid` of its airborne time, and consistent.
+fn assert_available_and_consistent(i: u64, min_valid: f64) {
     let r = run_draw(SEED, i, EstimatorConfig::default(), HealthConfig::default());
     let valid = r.availability.airborne_valid_fraction.unwrap_or(0.0);
     println!(
@@ -217,7 +232,7 @@ fn a_climb_on_flow_beyond_the_range_finder_stays_valid() {
         r.description
     );
     assert!(
-        valid >= 0.8,
+        valid >= min_valid,
         "draw {i}: {:.1} % valid airborne",
         100.0 * valid
     );
@@ -227,4 +242,15 @@ fn a_climb_on_flow_beyond_the_range_finder_stays_valid() {
         "draw {i}: {:?}",
         c.within_3_sigma
     );
+}
+
+/// A hover on flow alone at 3.4 m with a 10 Hz attitude (draw 403): the IMU gyro's
+/// bias, learnt from the autopilot's rates with a gain per sample, took 100 s at that
+/// rate instead of its 20 s, and the flow, compensated with the gyro, read the bias
+/// times the height as a velocity no innovation shows: 5 m of drift with σ 1-2 m
+/// (67.6 % within 3σ north). The bias is learnt over its time constant in time, and
+/// what is not learnt yet is a state the flow's fusion carries.
+#[test]
+fn a_flow_carries_the_gyro_bias_not_yet_learnt() {
+    assert_consistent(403);
 }

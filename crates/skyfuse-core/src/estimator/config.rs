@@ -195,6 +195,9 @@ pub const DEFAULT_FLOW_MAX_RATE: f64 = 4.0;
 /// Flow angular rate noise 1σ at the least usable quality, rad/s (PX4 EKF2_OF_N_MAX);
 /// between it and `flow_rate_noise` at quality 255, linearly.
 pub const DEFAULT_FLOW_RATE_NOISE_MAX: f64 = 0.5;
+/// Learn how much quieter than `flow_rate_noise` a flow sensor is from its innovations
+/// (see `flow::RateNoise`).
+pub const DEFAULT_FLOW_RATE_NOISE_LEARN: bool = true;
 /// Gyro low-pass for rotation compensation, Hz (seed 001: LPF_1_(3.0, ...)).
 pub const DEFAULT_FLOW_GYRO_LPF_HZ: f64 = 3.0;
 /// Gyro clamp for rotation compensation, rad/s (seed 001: LIMIT(gyro, -flow_t, flow_t)).
@@ -241,6 +244,9 @@ pub const DEFAULT_FLOW_SCALE_RW: f64 = 0.0005;
 pub const DEFAULT_FLOW_HEADING_STD: f64 = 0.05;
 /// How fast that heading error wanders, rad/√s (a compass near steel, a yaw that drifts).
 pub const DEFAULT_FLOW_HEADING_RW: f64 = 0.0005;
+/// The bias error 1σ of the gyro that compensates a flow's rates before anything
+/// learns it, rad/s (a MEMS gyro after its start-up calibration: a few mrad/s).
+pub const DEFAULT_FLOW_GYRO_BIAS_STD: f64 = 0.005;
 /// Flow calibration: samples per axis, flow-rate threshold, timeout, accepted scale range.
 pub const DEFAULT_FLOW_CAL_SAMPLES: usize = 50;
 pub const DEFAULT_FLOW_CAL_MIN_RATE: f64 = 0.1;
@@ -380,11 +386,13 @@ pub struct EstimatorConfig {
     pub flow_min_quality: u8,
     pub flow_rate_noise: f64,
     pub flow_rate_noise_max: f64,
+    pub flow_rate_noise_learn: bool,
     pub flow_min_height_m: f64,
     pub flow_scale_std: f64,
     pub flow_scale_rw: f64,
     pub flow_heading_std: f64,
     pub flow_heading_rw: f64,
+    pub flow_gyro_bias_std: f64,
     pub range_noise: f64,
     pub baro_noise: f64,
     pub baro_drift_rw: f64,
@@ -470,11 +478,13 @@ impl Default for EstimatorConfig {
             flow_min_quality: DEFAULT_FLOW_MIN_QUALITY,
             flow_rate_noise: DEFAULT_FLOW_RATE_NOISE,
             flow_rate_noise_max: DEFAULT_FLOW_RATE_NOISE_MAX,
+            flow_rate_noise_learn: DEFAULT_FLOW_RATE_NOISE_LEARN,
             flow_min_height_m: DEFAULT_FLOW_MIN_HEIGHT_M,
             flow_scale_std: DEFAULT_FLOW_SCALE_STD,
             flow_scale_rw: DEFAULT_FLOW_SCALE_RW,
             flow_heading_std: DEFAULT_FLOW_HEADING_STD,
             flow_heading_rw: DEFAULT_FLOW_HEADING_RW,
+            flow_gyro_bias_std: DEFAULT_FLOW_GYRO_BIAS_STD,
             range_noise: DEFAULT_RANGE_NOISE,
             baro_noise: DEFAULT_BARO_NOISE,
             baro_drift_rw: DEFAULT_BARO_DRIFT_RW,
@@ -558,6 +568,7 @@ impl EstimatorConfig {
             ("flow_scale_rw", self.flow_scale_rw),
             ("flow_heading_std", self.flow_heading_std),
             ("flow_heading_rw", self.flow_heading_rw),
+            ("flow_gyro_bias_std", self.flow_gyro_bias_std),
             ("terrain_gradient", self.terrain_gradient),
             ("yaw_error_std", self.yaw_error_std),
             ("delay_std_s", self.delay_std_s),

@@ -71,6 +71,13 @@ pub struct Ekf {
     /// position's uncertainty grow with the distance from where the flow started, as
     /// the error does; another velocity or position source calibrates them.
     pub scales: Vec<(String, usize)>,
+    /// (source id, index, correlation time s) of each flow source's compensation gyro
+    /// bias error (δb_x, δb_y, rad/s, at the index and the next): the flow reads it
+    /// times the height as a velocity, an offset no innovation shows (the prediction
+    /// follows it), so it is considered, never corrected: the position's σ grows with
+    /// it as the error does. It fades with the correlation time where the bias is
+    /// being learnt (the autopilot's rates), and stays where nothing learns it.
+    pub gyro_biases: Vec<(String, usize, f64)>,
     /// Random walk of the scale errors, 1/√s, and of the heading errors, rad/√s.
     pub scale_rw: f64,
     pub heading_rw: f64,
@@ -135,6 +142,7 @@ impl Ekf {
             p,
             blocks: Vec::new(),
             scales: Vec::new(),
+            gyro_biases: Vec::new(),
             scale_rw: 0.0,
             heading_rw: 0.0,
             terrain_rw: 0.0,
@@ -170,6 +178,10 @@ impl Ekf {
             names[*i] = format!("{s}.scale");
             names[i + 1] = format!("{s}.heading");
         }
+        for (s, i, _) in &self.gyro_biases {
+            names[*i] = format!("{s}.gyro_bias_x");
+            names[i + 1] = format!("{s}.gyro_bias_y");
+        }
         for (s, i) in &self.delays {
             names[*i] = format!("{s}.delay");
         }
@@ -194,6 +206,22 @@ impl Ekf {
         self.yaw_error_std = std;
         self.yaw_error_tau_s = tau_s;
         self.p[(IDX_YAW, IDX_YAW)] = prior_std * prior_std;
+    }
+
+    /// The index of `source`'s compensation gyro bias error (x, and y at the next),
+    /// added (0, variance `var` per axis) on first use; `tau_s` its correlation time
+    /// from now on (infinite: held).
+    pub fn gyro_bias_state(&mut self, source: &str, var: f64, tau_s: f64) -> usize {
+        if let Some(g) = self.gyro_biases.iter_mut().find(|(s, ..)| s == source) {
+            g.2 = tau_s;
+            return g.1;
+        }
+        let n = self.n();
+        self.grow(2);
+        self.p[(n, n)] = var;
+        self.p[(n + 1, n + 1)] = var;
+        self.gyro_biases.push((source.to_string(), n, tau_s));
+        n
     }
 
     /// The index of `source`'s delay state, added (0, variance `var`) on first use.
@@ -459,6 +487,24 @@ impl Ekf {
             let (rw, idx) = (drift_rw(source), *idx);
             for i in 0..3 {
                 next[(idx + i, idx + i)] += rw * rw * dt;
+            }
+        }
+        // The compensation gyro bias errors fade as the bias is learnt: F's diagonal
+        // φ there, no noise (what is learnt is what they lose).
+        for &(_, idx, tau) in &self.gyro_biases {
+            if !tau.is_finite() {
+                continue;
+            }
+            let phi = (-dt / tau.max(1e-3)).exp();
+            let n = self.p.nrows();
+            for k in idx..idx + 2 {
+                self.x[k] *= phi;
+                for j in 0..n {
+                    self.p[(k, j)] *= phi;
+                }
+                for j in 0..n {
+                    self.p[(j, k)] *= phi;
+                }
             }
         }
         // Only the entries between two changed states can have lost their symmetry: an
@@ -1338,6 +1384,41 @@ mod tests {
         ekf.p = p.clone();
         ekf.blocks.push(("vo".into(), CORE_STATES));
         ekf
+    }
+
+    /// A flow's compensation gyro bias error fades with its correlation time where the
+    /// bias is being learnt (and what it put into the position stays), and is held
+    /// where nothing learns it.
+    #[test]
+    fn a_gyro_bias_error_fades_only_while_it_is_learnt() {
+        let mut ekf = Ekf::new(
+            Vector3::zeros(),
+            Vector3::zeros(),
+            Vector3::repeat(1.0),
+            Vector3::repeat(1.0),
+            0.0,
+        );
+        let learnt = ekf.gyro_bias_state("flow", 1e-4, 10.0);
+        let held = ekf.gyro_bias_state("flow_own_gyro", 1e-4, f64::INFINITY);
+        assert_eq!(ekf.gyro_bias_state("flow", 1e-4, 10.0), learnt);
+        ekf.p[(IDX_P, learnt)] = 5e-3;
+        ekf.p[(learnt, IDX_P)] = 5e-3;
+        for _ in 0..100 {
+            ekf.predict(
+                Vector3::new(0.0, 0.0, GRAVITY),
+                &Matrix3::identity(),
+                0.1,
+                0.0,
+                0.0,
+                |_| 0.0,
+            );
+        }
+        let e2 = (-2.0f64).exp();
+        assert!((ekf.p[(learnt, learnt)] - 1e-4 * e2).abs() < 1e-9);
+        assert!((ekf.p[(learnt + 1, learnt + 1)] - 1e-4 * e2).abs() < 1e-9);
+        assert!((ekf.p[(IDX_P, learnt)] - 5e-3 * (-1.0f64).exp()).abs() < 1e-9);
+        assert_eq!(ekf.p[(held, held)], 1e-4);
+        assert_eq!(ekf.state_names()[learnt], "flow.gyro_bias_x");
     }
 
     /// The structured prediction equals the dense F P Fᵀ it replaces, on a full (random,

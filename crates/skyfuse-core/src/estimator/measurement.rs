@@ -10,9 +10,9 @@ use nalgebra::{DVector, Matrix3, Vector3};
 /// Most rows a measurement has (a 3-D position or velocity).
 pub const MAX_ROWS: usize = 3;
 /// Most states one Jacobian row reads (a flow velocity reads the three velocity states,
-/// its source's scale, heading and delay, the attitude's heading error, and, scaled by
-/// the filter's own height, that height's two states).
-const ROW_STATES: usize = 10;
+/// its source's scale, heading, delay and compensation gyro bias, the attitude's
+/// heading error, and, scaled by the filter's own height, that height's two states).
+const ROW_STATES: usize = 11;
 
 /// Innovation `y = z − h(x)`, Jacobian `H` (rows × n, sparse) and noise `R`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -28,7 +28,7 @@ pub struct Measurement {
 }
 
 /// Most consider states one measurement has.
-pub const MAX_CONSIDER: usize = 4;
+pub const MAX_CONSIDER: usize = 6;
 
 /// One row of H: its non-zero entries, by state index.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

@@ -30,9 +30,15 @@ const MAX_PREDICT_STEP_S: f64 = 0.1;
 /// What a body-frame velocity comes from (see [`Core::fuse_body_velocity`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum BodyVelocity {
-    /// A flow's two horizontal axes; `height_scale`: the filter's own height above the
-    /// terrain (m) when that is what scaled its rates.
-    Flow { height_scale: Option<f64> },
+    /// A flow's two horizontal axes, scaled by `slant` (m, along the body's down
+    /// axis); `height_scale`: the filter's own height above the terrain (m) when that
+    /// is what scaled it; `gyro_bias_tau_s`: how fast the bias error of the IMU gyro
+    /// that compensated it fades (infinite: nothing learns it; none: its own gyro did).
+    Flow {
+        slant: f64,
+        height_scale: Option<f64>,
+        gyro_bias_tau_s: Option<f64>,
+    },
     /// An odometry's three axes.
     Odometry,
 }
@@ -671,9 +677,13 @@ impl Core {
         what: BodyVelocity,
         ctx: &Ctx,
     ) {
-        let (rows, height_scale) = match what {
-            BodyVelocity::Flow { height_scale } => (2, height_scale),
-            BodyVelocity::Odometry => (3, None),
+        let (rows, height_scale, gyro_bias) = match what {
+            BodyVelocity::Flow {
+                slant,
+                height_scale,
+                gyro_bias_tau_s,
+            } => (2, height_scale, gyro_bias_tau_s.map(|tau| (slant, tau))),
+            BodyVelocity::Odometry => (3, None, None),
         };
         if !self.mode_ekf_direct {
             if rows == 2 {
@@ -701,6 +711,11 @@ impl Core {
             bank.each_main(|ekf| {
                 ekf.scale_state(source, scale_var.max(1e-12), heading_var.max(1e-12))
             })
+        });
+        let gyro_var = cfg.flow_gyro_bias_std.powi(2);
+        let gyro_bias = gyro_bias.filter(|_| gyro_var > 0.0).map(|(slant, tau)| {
+            let i = bank.each_main(|ekf| ekf.gyro_bias_state(source, gyro_var, tau));
+            (i, slant)
         });
         let ekf = &**bank;
         let (k, psi) = errors.map_or((0.0, 0.0), |i| (ekf.x[i], ekf.x[i + 1]));
@@ -764,6 +779,13 @@ impl Core {
                 m.consider(ekf::IDX_P + 2);
                 m.consider(ekf::IDX_TERRAIN);
             }
+        }
+        // The compensation's gyro bias error δb reads as (δb_y, −δb_x)·d: considered.
+        if let Some((i, d)) = gyro_bias {
+            m.set_jacobian(0, i + 1, d);
+            m.set_jacobian(1, i, -d);
+            m.consider(i);
+            m.consider(i + 1);
         }
         for i in 0..rows {
             r[(i, i)] += att_var;
