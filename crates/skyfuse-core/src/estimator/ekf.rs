@@ -534,8 +534,9 @@ impl Ekf {
         force: bool,
     ) -> UpdateOutcome {
         let n = self.n();
-        with_scratch(2 * n * M, |scratch| {
-            let (pht, k) = scratch.split_at_mut(n * M);
+        with_scratch(3 * n * M, |scratch| {
+            let (pht, rest) = scratch.split_at_mut(n * M);
+            let (k, kl) = rest.split_at_mut(n * M);
             let (out, chol) = self.test_rows::<M>(m, gate, force, pht);
             let Some(chol) = chol.filter(|_| out.accepted) else {
                 return out;
@@ -570,7 +571,6 @@ impl Ekf {
                 // − (K H P)ᵀ + K S Kᵀ, S = L Lᵀ.
                 let l = chol.l();
                 // K L, once (column e at e·n), for K S Kᵀ = (K L)(K L)ᵀ.
-                let mut kl = vec![0.0; n * M];
                 for e in 0..M {
                     for i in 0..n {
                         kl[e * n + i] = (0..M).map(|c| k[c * n + i] * l[(c, e)]).sum();
@@ -1080,13 +1080,14 @@ pub fn yaw_rotation(yaw: f64) -> Matrix3<f64> {
     Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
 }
 
-/// P·Hᵀ and the gain of a filter this large fit on the stack (14 core states and 16
-/// odometry sources); a larger one takes them from the heap.
+/// P·Hᵀ, the gain and (a considered state's update) K·L of a filter this large fit on
+/// the stack (14 core states and 16 odometry sources); a larger one takes them from the
+/// heap.
 pub const STACK_STATES: usize = 64;
 
-/// Runs `f` on `len` zeroed scratch values: on the stack up to [`STACK_STATES`]·2·3.
+/// Runs `f` on `len` zeroed scratch values: on the stack up to [`STACK_STATES`]·3·3.
 fn with_scratch<R>(len: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
-    const STACK: usize = 2 * STACK_STATES * MAX_ROWS;
+    const STACK: usize = 3 * STACK_STATES * MAX_ROWS;
     if len <= STACK {
         let mut buf = [0.0; STACK];
         f(&mut buf[..len])
