@@ -465,7 +465,7 @@ pub fn process_attitude(core: &mut Core, ctx: &Ctx, t: i64, source: &str, a: &At
                 // Its time constant in time, not in samples: a gain per sample made
                 // it 100 s at a 10 Hz attitude, and the flow, compensated with the
                 // gyro, read the bias times the height as a velocity for minutes (a
-                // hover at 3.4 m drifted 5 m with σ 0.4 m, randomised draw 403).
+                // hover at 3.4 m drifted 5 m with σ 1-2 m, randomised draw 403).
                 let dt = core.imu.bias_rates_t.map_or(BIAS_RATES_FIRST_DT_S, |t0| {
                     ((t - t0) as f64 * 1e-6).clamp(0.0, BIAS_RATES_MAX_DT_S)
                 });
