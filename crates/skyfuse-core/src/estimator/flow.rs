@@ -563,23 +563,18 @@ fn gyro_bias_tau_s(
 /// capped): a sensor that turns noisier is refused at the gate first, and a learner
 /// deaf to refusals would keep it refused for good.
 fn learn_rate_noise(core: &mut Core, t: i64, source: &str, fused: f64, configured: f64) {
-    let Some(st) = core.stats.get(source) else {
+    let Some(st) = core
+        .stats
+        .get(source)
+        .filter(|st| st.last_time_us == Some(t))
+    else {
         return;
     };
-    if st.last_time_us != Some(t) {
+    let Some(fs) = core.flow.get_mut(source) else {
         return;
-    }
-    let mut rows = [(f64::NAN, f64::NAN); 2];
-    for (row, (y, s)) in rows
-        .iter_mut()
-        .zip(st.innovation.iter().zip(&st.innovation_var))
-    {
-        *row = (*y, *s);
-    }
-    if let Some(fs) = core.flow.get_mut(source) {
-        for (y, s) in rows {
-            fs.noise.observe(y, s, fused, configured);
-        }
+    };
+    for (y, s) in st.innovation.iter().zip(&st.innovation_var) {
+        fs.noise.observe(*y, *s, fused, configured);
     }
 }
 

@@ -58,8 +58,7 @@ pub struct ImuState {
     pub last: Option<ImuInput>,
     /// Gyro bias estimated against the autopilot's (bias-corrected) rates.
     pub gyro_bias: Vector3<f64>,
-    pub bias_from_rates: bool,
-    /// When the autopilot's rates last taught the gyro bias, µs.
+    /// When the autopilot's rates last taught the gyro bias, µs (none: never).
     pub bias_rates_t: Option<i64>,
     /// Latest bias-corrected body rate, rad/s.
     pub rate: Option<(i64, Vector3<f64>)>,
@@ -471,7 +470,6 @@ pub fn process_attitude(core: &mut Core, ctx: &Ctx, t: i64, source: &str, a: &At
                 });
                 let k = (dt / cfg.gyro_bias_tau_s.max(dt)).min(1.0);
                 core.imu.gyro_bias += ((g - rates) - core.imu.gyro_bias) * k;
-                core.imu.bias_from_rates = true;
                 core.imu.bias_rates_t = Some(t);
             }
         }

@@ -731,13 +731,16 @@ impl Core {
         // the heading's lasting part is ψ).
         let att_var = ekf.vel().norm_squared() * self.att.cov.trace() / 3.0;
         let mut m = odometry::body_velocity_measurement(&(turn.transpose() * rot), rows);
+        // h(x) per row: what the measurement is predicted to read.
+        let mut predicted = [pred.x, pred.y, pred.z];
         match errors {
             Some(si) => {
                 // h = (1 + k)·(p_x − ψ·p_y, p_y + ψ·p_x), p = Rᵀv.
                 let turned = [pred.x - psi * pred.y, pred.y + psi * pred.x];
                 let dturn_dp = [[1.0, -psi], [psi, 1.0]];
                 for i in 0..2 {
-                    m.set_innovation(i, vb[i] - (1.0 + k) * turned[i]);
+                    predicted[i] = (1.0 + k) * turned[i];
+                    m.set_innovation(i, vb[i] - predicted[i]);
                     for j in 0..3 {
                         let dp = dturn_dp[i][0] * rt[(0, j)] + dturn_dp[i][1] * rt[(1, j)];
                         m.set_jacobian(i, IDX_V + j, (1.0 + k) * dp);
@@ -754,7 +757,7 @@ impl Core {
             }
             None => {
                 for i in 0..rows {
-                    m.set_innovation(i, vb[i] - pred[i]);
+                    m.set_innovation(i, vb[i] - predicted[i]);
                     m.set_jacobian(i, ekf::IDX_YAW, dpred_dyaw[i]);
                 }
             }
@@ -764,14 +767,7 @@ impl Core {
         // nothing tells a lower vehicle from a slower one (as for the scale error): the
         // height is then considered, not corrected.
         if let Some(h_est) = height_scale.filter(|h| *h > 0.0) {
-            for i in 0..rows {
-                let h = match errors {
-                    Some(_) => {
-                        let turned = [pred.x - psi * pred.y, pred.y + psi * pred.x];
-                        (1.0 + k) * turned[i]
-                    }
-                    None => pred[i],
-                };
+            for (i, &h) in predicted.iter().enumerate().take(rows) {
                 m.set_jacobian(i, ekf::IDX_P + 2, -h / h_est);
                 m.set_jacobian(i, ekf::IDX_TERRAIN, h / h_est);
             }
