@@ -118,7 +118,11 @@ fn without_failures(i: u64, r: DrawResult) -> Consistency {
 
 /// The same, and 99 % of the valid poses within 3σ on every axis.
 fn assert_consistent(i: u64) {
-    let c = run_without_failures(i);
+    assert_within_3_sigma(i, &run_without_failures(i));
+}
+
+/// 99 % of draw `i`'s valid poses within 3σ on every axis.
+fn assert_within_3_sigma(i: u64, c: &Consistency) {
     assert!(
         c.within_3_sigma.iter().all(|&w| w >= 0.99),
         "draw {i}: {:?}",
@@ -236,12 +240,7 @@ fn assert_available_and_consistent(i: u64, min_valid: f64) {
         "draw {i}: {:.1} % valid airborne",
         100.0 * valid
     );
-    let c = without_failures(i, r);
-    assert!(
-        c.within_3_sigma.iter().all(|&w| w >= 0.99),
-        "draw {i}: {:?}",
-        c.within_3_sigma
-    );
+    assert_within_3_sigma(i, &without_failures(i, r));
 }
 
 /// A hover on flow alone at 3.4 m with a 10 Hz attitude (draw 403): the IMU gyro's

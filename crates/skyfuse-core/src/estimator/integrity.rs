@@ -722,6 +722,12 @@ mod tests {
 
     #[test]
     fn a_measurement_says_which_channels_it_informs() {
+        // A horizontal velocity, nothing more.
+        let horizontal_velocity = Channels {
+            horizontal: true,
+            vertical: false,
+            position: [false, false],
+        };
         let m = Measurement::height(0.1, 0.01);
         assert_eq!(
             Channels::of(&m),
@@ -733,14 +739,7 @@ mod tests {
         );
         let r = nalgebra::Matrix3::identity();
         let m = Measurement::of_states(IDX_V, 2, &Vector3::zeros(), &r);
-        assert_eq!(
-            Channels::of(&m),
-            Channels {
-                horizontal: true,
-                vertical: false,
-                position: [false, false],
-            }
-        );
+        assert_eq!(Channels::of(&m), horizontal_velocity);
         // A flow scaled by the filter's own height reads the height states as its
         // scale: still a horizontal velocity, not a height.
         let mut m = Measurement::of_states(IDX_V, 2, &Vector3::zeros(), &r);
@@ -748,14 +747,7 @@ mod tests {
             m.set_jacobian(row, IDX_P + 2, -0.5);
             m.set_jacobian(row, IDX_TERRAIN, 0.5);
         }
-        assert_eq!(
-            Channels::of(&m),
-            Channels {
-                horizontal: true,
-                vertical: false,
-                position: [false, false],
-            }
-        );
+        assert_eq!(Channels::of(&m), horizontal_velocity);
         let m = Measurement::of_states(IDX_P, 3, &Vector3::zeros(), &r);
         assert!(Channels::of(&m).horizontal && Channels::of(&m).vertical);
     }
