@@ -247,7 +247,22 @@ impl Estimator {
                 continue;
             }
             let shift = self.delay_shift.get(source).map_or(0, |d| d.0);
-            let to = (shift + tau_us.round() as i64).clamp(DELAY_SHIFT_MIN_US, DELAY_SHIFT_MAX_US);
+            // Never beyond what the history holds: a sample moved earlier than the oldest
+            // snapshot is dropped, and a source whose every sample is dropped can never
+            // show its delay was wrong. A GNSS arriving 135 ms after its stamps, its
+            // delay taken for 440 ms on laps (a delay and a turn look alike there), had
+            // its fixes dropped as older than the 500 ms history, for 16 s at a time
+            // (randomised draw 488).
+            // How late it arrives unshifted (its lateness is measured on shifted times;
+            // a window from before the shift reads less, never more).
+            let arrives_late = self
+                .lateness
+                .get(source)
+                .map_or(0, |l| (l.peak() - shift).max(0));
+            let most = ((self.cfg.history_ms * 1000.0) as i64 * 4 / 5 - arrives_late)
+                .min(DELAY_SHIFT_MAX_US);
+            let to = (shift + tau_us.round() as i64)
+                .clamp(DELAY_SHIFT_MIN_US, most.max(DELAY_SHIFT_MIN_US));
             if to != shift {
                 moves.push((source.clone(), *idx, to, (to - shift) as f64 * 1e-6));
             }
