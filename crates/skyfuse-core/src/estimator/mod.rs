@@ -189,6 +189,13 @@ const DELAY_ADOPT_STD_US: f64 = 30_000.0;
 /// and a queue plausibly add to (or take from) its configured latency.
 const DELAY_SHIFT_MIN_US: i64 = -100_000;
 const DELAY_SHIFT_MAX_US: i64 = 600_000;
+/// At most this part of the history (`history_ms`), less how late the source arrives,
+/// is moved into its sample times: a sample moved earlier than the oldest snapshot is
+/// dropped, and a source whose every sample is dropped can never show its delay was
+/// wrong. A GNSS arriving 135 ms after its stamps, its delay taken for 440 ms on laps
+/// (a delay and a turn look alike there), had its fixes dropped as older than the
+/// 500 ms history, for 16 s at a time (randomised draw 488).
+const DELAY_SHIFT_HISTORY_PARTS: (i64, i64) = (4, 5);
 
 /// A snapshot of the core at most this often, µs. Any earlier snapshot re-runs to the
 /// same state, so the spacing trades the clones (the core is large: maps, series,
@@ -247,20 +254,16 @@ impl Estimator {
                 continue;
             }
             let shift = self.delay_shift.get(source).map_or(0, |d| d.0);
-            // Never beyond what the history holds: a sample moved earlier than the oldest
-            // snapshot is dropped, and a source whose every sample is dropped can never
-            // show its delay was wrong. A GNSS arriving 135 ms after its stamps, its
-            // delay taken for 440 ms on laps (a delay and a turn look alike there), had
-            // its fixes dropped as older than the 500 ms history, for 16 s at a time
-            // (randomised draw 488).
-            // How late it arrives unshifted (its lateness is measured on shifted times;
-            // a window from before the shift reads less, never more).
+            // Never beyond what the history holds (see `DELAY_SHIFT_HISTORY_PARTS`). How
+            // late it arrives unshifted: its lateness is measured on shifted times, and a
+            // window from before the shift reads less, never more.
             let arrives_late = self
                 .lateness
                 .get(source)
                 .map_or(0, |l| (l.peak() - shift).max(0));
-            let most = ((self.cfg.history_ms * 1000.0) as i64 * 4 / 5 - arrives_late)
-                .min(DELAY_SHIFT_MAX_US);
+            let (part, whole) = DELAY_SHIFT_HISTORY_PARTS;
+            let history_us = (self.cfg.history_ms * 1000.0) as i64;
+            let most = (history_us * part / whole - arrives_late).min(DELAY_SHIFT_MAX_US);
             let to = (shift + tau_us.round() as i64)
                 .clamp(DELAY_SHIFT_MIN_US, most.max(DELAY_SHIFT_MIN_US));
             if to != shift {
