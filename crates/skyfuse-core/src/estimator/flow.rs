@@ -64,7 +64,7 @@ const RATE_NOISE_MAX_FRACTION: f64 = 1.0;
 /// speed again), and a rate reads them divided by the height: a floor held in rate
 /// grew the velocity noise of a flow at 20 m five times past what those errors need,
 /// and on a climb above its range finder the position's σ outgrew the alert limit in
-/// minutes while its error stayed a metre (randomised climbs on flow with a
+/// minutes while its error stayed metres (randomised climbs on flow with a
 /// barometer: 36.6 % valid airborne at the median). Every flight that failed with a
 /// lower floor flew below this height.
 const RATE_NOISE_FLOOR_HEIGHT_M: f64 = 4.0;
