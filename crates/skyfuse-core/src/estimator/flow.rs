@@ -768,17 +768,19 @@ mod tests {
     }
 
     /// Above the floor's height the floor holds the velocity, not the rate: a quiet
-    /// sensor (a tenth of the configured variance) at 8 m is fused at a quarter of the
-    /// floor a low flow keeps, at 30 m at the lowest, and at 2 m as before.
+    /// sensor (a hundredth of the configured variance) at 6 m is fused at (4/6)² of the
+    /// floor a low flow keeps (above the lowest, so the height's own scaling shows), at
+    /// 30 m at the lowest, and at 2 m as before.
     #[test]
     fn a_high_flow_keeps_the_floor_in_velocity_not_in_rate() {
         let quiet = 0.01;
         let low = learnt_fraction_at(quiet, 0.05, 5_000, 2.0);
         assert!((low - RATE_NOISE_MIN_FRACTION).abs() < 1e-12, "{low}");
-        let h = 2.0 * RATE_NOISE_FLOOR_HEIGHT_M;
+        let h = 1.5 * RATE_NOISE_FLOOR_HEIGHT_M;
         let high = learnt_fraction_at(quiet, 0.05, 5_000, h);
+        assert!(high > RATE_NOISE_LOWEST_FRACTION, "{high}");
         assert!(
-            (high - RATE_NOISE_MIN_FRACTION / 4.0).abs() < 1e-12,
+            (high - RATE_NOISE_MIN_FRACTION / 2.25).abs() < 1e-12,
             "{high}"
         );
         // The velocity's floor is the same at both heights.
