@@ -72,26 +72,50 @@ fn live_difference(stdout: &str) -> (usize, f64, f64) {
 /// 0.04 m from 1 s on). A later difference is the replay not reproducing the flight.
 const SETTLE_S: f64 = 1.0;
 
-/// (matched, RMS, max) of the position difference between the replay's valid poses
-/// (`fused.tum`) and those sent live (`live.tum`) from [`SETTLE_S`] on, each live pose
-/// against the replayed pose nearest in time (within 10 ms, as `skyfuse replay` pairs).
-fn settled_difference(out: &Path) -> (usize, f64, f64) {
+/// How the replay's valid poses (`fused.tum`) differ from those sent live (`live.tum`)
+/// from [`SETTLE_S`] on: each live pose against the closest of the replayed poses within
+/// 10 ms of it (the window `skyfuse replay` pairs in). Not the nearest in time: the
+/// replay's 50 Hz poses fall 5 ms off the live ones, and a correction landing between
+/// the two stamps put the step on one side only (0.14 m, a range finder's height fix at
+/// 5.17 s, 1 run in 6 under load).
+struct Difference {
+    matched: usize,
+    rms: f64,
+    /// The 95th percentile.
+    p95: f64,
+    max: f64,
+    /// When the largest difference was, s from the filter's start.
+    max_at: f64,
+}
+
+fn settled_difference(out: &Path) -> Difference {
     let live = tum_positions(&out.join("live.tum"));
     let fused = tum_positions(&out.join("fused.tum"));
-    let (mut n, mut sum, mut max) = (0usize, 0.0, 0.0f64);
+    let mut d: Vec<(f64, f64)> = Vec::new();
     for (t, p) in live.iter().filter(|(t, _)| *t >= SETTLE_S) {
-        let near = fused
+        let closest = fused
             .iter()
-            .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()))
-            .filter(|(ft, _)| (ft - t).abs() <= 0.01);
-        if let Some((_, q)) = near {
-            let d = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
-            n += 1;
-            sum += d * d;
-            max = max.max(d);
+            .filter(|(ft, _)| (ft - t).abs() <= 0.01)
+            .map(|(_, q)| {
+                ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+            })
+            .min_by(f64::total_cmp);
+        if let Some(e) = closest {
+            d.push((e, *t));
         }
     }
-    (n, (sum / n.max(1) as f64).sqrt(), max)
+    let matched = d.len();
+    let rms = (d.iter().map(|(e, _)| e * e).sum::<f64>() / matched.max(1) as f64).sqrt();
+    d.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (max, max_at) = d.last().copied().unwrap_or((0.0, f64::NAN));
+    let p95 = d.get(matched * 95 / 100).map_or(0.0, |x| x.0);
+    Difference {
+        matched,
+        rms,
+        p95,
+        max,
+        max_at,
+    }
 }
 
 fn tum_positions(file: &Path) -> Vec<(f64, [f64; 3])> {
@@ -223,14 +247,22 @@ fn a_recorded_flight_reads_in_the_mcap_tools_and_replays_to_the_poses_sent_live(
     }
     let (matched, _, _) = live_difference(&stdout);
     assert!(matched > 250, "{stdout}");
-    let (settled, rms, max) = settled_difference(&a);
-    eprintln!("replay vs live from {SETTLE_S} s: {settled} poses, RMS {rms} m, max {max} m");
-    assert!(settled > 200, "{settled} poses compared:\n{stdout}");
+    let d = settled_difference(&a);
+    eprintln!(
+        "replay vs live from {SETTLE_S} s: {} poses, RMS {:.4} m, 95th percentile {:.4} m, max {:.4} m at {:.2} s",
+        d.matched, d.rms, d.p95, d.max, d.max_at
+    );
+    assert!(d.matched > 200, "{} poses compared:\n{stdout}", d.matched);
     // Not zero: live, samples of different inputs can reach the filter in another order
-    // than their arrival stamps in the recording (several receiving threads).
+    // than their arrival stamps in the recording (several receiving threads); under load
+    // the pose at each 10 Hz GNSS fix is 2-8 cm apart, one in five.
     assert!(
-        rms < 0.02 && max < 0.1,
-        "RMS {rms} m, max {max} m:\n{stdout}"
+        d.rms < 0.02 && d.max < 0.1,
+        "RMS {:.4} m, 95th percentile {:.4} m, max {:.4} m at {:.2} s:\n{stdout}",
+        d.rms,
+        d.p95,
+        d.max,
+        d.max_at
     );
 }
 
@@ -277,7 +309,7 @@ fn a_rosbag2_bag_written_by_rosbags_replays_like_the_recording() {
     let file = recording(&dir);
     let from_recording = tmp("ros-replay");
     let (stdout, _) = replay(&file, &from_recording, &env);
-    let (_, rms, _) = settled_difference(&from_recording);
+    let rms = settled_difference(&from_recording).rms;
     assert!(rms < 0.02, "RMS {rms} m from {SETTLE_S} s:\n{stdout}");
 
     // The same messages as a bag, topics as ROS names them (with skyfuse's own ROS 2

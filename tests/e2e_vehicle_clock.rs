@@ -16,6 +16,8 @@ struct Run {
     /// The T265's innovation test ratio, polled once a second.
     t265_ratios: Vec<f64>,
     t265_ok: usize,
+    /// The T265's health at each poll.
+    t265_health: Vec<String>,
     polls: usize,
     /// VISION_POSITION_ESTIMATEs received in `LISTEN_S`: (host s, usec).
     vpe: Vec<(f64, f64)>,
@@ -47,7 +49,7 @@ fn fly_at_five_times(follow: bool) -> Run {
             && s["service"]["uptime_s"].as_f64() > Some(10.0)
     });
     let clock = s["ingest"]["clock"].clone();
-    let (mut t265_ratios, mut t265_ok, mut polls) = (Vec::new(), 0, 0);
+    let (mut t265_ratios, mut t265_ok, mut t265_health, mut polls) = (Vec::new(), 0, Vec::new(), 0);
     for _ in 0..8 {
         std::thread::sleep(Duration::from_secs(1));
         let s = svc.get_json("/api/v1/status");
@@ -56,6 +58,7 @@ fn fly_at_five_times(follow: bool) -> Run {
         if t265["health"] == "ok" {
             t265_ok += 1;
         }
+        t265_health.push(t265["health"].as_str().unwrap_or("none").to_string());
         if let Some(r) = t265["test_ratio"].as_f64() {
             t265_ratios.push(r);
         }
@@ -78,6 +81,7 @@ fn fly_at_five_times(follow: bool) -> Run {
         clock,
         t265_ratios,
         t265_ok,
+        t265_health,
         polls,
         vpe,
         all_finite,
@@ -112,8 +116,8 @@ fn a_vehicle_clock_at_five_times_real_time_is_fused_on() {
     let vpe_rate = on.vpe.len() as f64 / LISTEN_S;
     let slope = usec_per_host_s(&on.vpe) / 1e6;
     eprintln!(
-        "following: clock {} ; T265 test ratio median {ratio_on:.2} (ok in {}/{} polls); VPE {vpe_rate:.0}/s host, usec at {slope:.2} s per host s",
-        on.clock, on.t265_ok, on.polls
+        "following: clock {} ; T265 test ratio median {ratio_on:.2} (ok in {}/{} polls: {:?}); VPE {vpe_rate:.0}/s host, usec at {slope:.2} s per host s",
+        on.clock, on.t265_ok, on.polls, on.t265_health
     );
     assert_eq!(on.clock["base"], "vehicle", "{}", on.clock);
     assert_eq!(on.clock["reference"], "imu", "{}", on.clock);
@@ -143,14 +147,18 @@ fn a_vehicle_clock_at_five_times_real_time_is_fused_on() {
     let ratio_off = median(&off.t265_ratios);
     let vpe_rate_off = off.vpe.len() as f64 / LISTEN_S;
     eprintln!(
-        "host clock: clock {} ; T265 test ratio median {ratio_off:.2} (ok in {}/{} polls); VPE {vpe_rate_off:.0}/s host",
-        off.clock, off.t265_ok, off.polls
+        "host clock: clock {} ; T265 test ratio median {ratio_off:.2} (ok in {}/{} polls: {:?}); VPE {vpe_rate_off:.0}/s host",
+        off.clock, off.t265_ok, off.polls, off.t265_health
     );
     assert_eq!(off.clock["base"], "host", "{}", off.clock);
-    // Integrating 5 s of motion over each host second: the T265 disagrees by far.
+    // Integrating 5 s of motion over each host second: the T265 disagrees by far, and
+    // its health says so where it said ok in the run that followed the clock. Not its
+    // test ratio: that is against a covariance the misfit has already grown, 0.7 to
+    // 18 in runs of the same build.
     assert!(
-        ratio_off > 10.0 * ratio_on.max(0.1),
-        "on the host's clock the T265 should disagree: {:?}",
+        off.t265_ok * 4 <= off.polls,
+        "on the host's clock the T265 should disagree: health {:?}, test ratios {:?}",
+        off.t265_health,
         off.t265_ratios
     );
     // At most the host clock's 30 Hz (with slack): not the vehicle's 150. How many of
