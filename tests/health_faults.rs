@@ -226,6 +226,18 @@ fn every_fault_is_flagged_bounded_and_recovered() {
             .transitions
             .iter()
             .find(|(t, s, _, _)| *t >= fault.start_s && s == x.sensor);
+        // Nothing said of the sensor before its fault: a false alarm is a wrong report.
+        let early: Vec<_> = run
+            .transitions
+            .iter()
+            .filter(|(t, s, to, _)| *t < fault.start_s && s == x.sensor && to != "ok")
+            .collect();
+        if !early.is_empty() {
+            failures.push(format!(
+                "{}: {} flagged before its fault at {} s: {early:?}",
+                x.scenario, x.sensor, fault.start_s
+            ));
+        }
         let Some((t_flag, _, to, codes)) = flagged else {
             failures.push(format!("{}: {} never flagged", x.scenario, x.sensor));
             continue;

@@ -171,9 +171,9 @@ pub struct SourceStatus {
     pub usable: bool,
     pub segment: Option<u32>,
     /// An odometry's frame drifting against the fused one, m/s over the last second
-    /// (its offset state's change): a camera that lost track slides at decimetres a
-    /// second, which its offset's random walk absorbs sample by sample without one
-    /// large innovation.
+    /// (its offset state's change, less what the fused position's own corrections
+    /// explain): a camera that lost track slides at decimetres a second, which its
+    /// offset's random walk absorbs sample by sample without one large innovation.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub drift_mps: Option<f64>,
 }
