@@ -4,8 +4,8 @@
 //! on its IMU, fuse on it (so the filter integrates over the time the sensors lived),
 //! say so in the status, and send VISION_POSITION_ESTIMATE at its rate in that time
 //! (30 Hz of the vehicle's time: 150 a host second), stamped on it. With following
-//! turned off the same flight is fused on the host's clock, and the T265's innovations
-//! show how wrong that is: the check that the feature is what makes the difference.
+//! turned off the same flight is fused on the host's clock, and the T265's health
+//! shows how wrong that is: the check that the feature is what makes the difference.
 
 mod common;
 use common::*;
@@ -154,7 +154,7 @@ fn a_vehicle_clock_at_five_times_real_time_is_fused_on() {
     // Integrating 5 s of motion over each host second: the T265 disagrees by far, and
     // its health says so where it said ok in the run that followed the clock. Not its
     // test ratio: that is against a covariance the misfit has already grown, 0.7 to
-    // 18 in runs of the same build.
+    // 128 in runs of the same build.
     assert!(
         off.t265_ok * 4 <= off.polls,
         "on the host's clock the T265 should disagree: health {:?}, test ratios {:?}",
