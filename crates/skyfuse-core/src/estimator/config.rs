@@ -232,6 +232,10 @@ pub const DEFAULT_TERRAIN_GRADIENT: f64 = 0.1;
 /// must read good this long before it is fused again, ms (PX4 EKF2_RNG_QLTY_T): a sonar
 /// out of range that hears a stray echo now and then is never a height.
 pub const DEFAULT_RANGE_QUALITY_HOLD_MS: f64 = 1000.0;
+/// After a sample below `flow_min_quality` in the air, a flow sensor must read good
+/// this long before it is fused again, ms: over poor texture the samples it still
+/// calls good read slow.
+pub const DEFAULT_FLOW_QUALITY_HOLD_MS: f64 = 1000.0;
 /// A flow sensor's scale error 1σ before anything calibrated it (lens focal length,
 /// height error), as a fraction: 0.05 reads up to about 5 % fast or slow. 0 leaves
 /// the scale out of the filter (trusted exactly).
@@ -398,6 +402,7 @@ pub struct EstimatorConfig {
     pub baro_drift_rw: f64,
     pub range_max_tilt_rad: f64,
     pub range_quality_hold_ms: f64,
+    pub flow_quality_hold_ms: f64,
     pub terrain_rw: f64,
     pub terrain_gradient: f64,
     pub flow_cal_samples: usize,
@@ -490,6 +495,7 @@ impl Default for EstimatorConfig {
             baro_drift_rw: DEFAULT_BARO_DRIFT_RW,
             range_max_tilt_rad: DEFAULT_RANGE_MAX_TILT_RAD,
             range_quality_hold_ms: DEFAULT_RANGE_QUALITY_HOLD_MS,
+            flow_quality_hold_ms: DEFAULT_FLOW_QUALITY_HOLD_MS,
             terrain_rw: DEFAULT_TERRAIN_RW,
             terrain_gradient: DEFAULT_TERRAIN_GRADIENT,
             flow_cal_samples: DEFAULT_FLOW_CAL_SAMPLES,
@@ -579,11 +585,13 @@ impl EstimatorConfig {
                 return Err(format!("estimator.{name} must be between 0 and 1, got {v}"));
             }
         }
-        if !(self.range_quality_hold_ms.is_finite() && self.range_quality_hold_ms >= 0.0) {
-            return Err(format!(
-                "estimator.range_quality_hold_ms must be 0 or more, got {}",
-                self.range_quality_hold_ms
-            ));
+        for (name, v) in [
+            ("range_quality_hold_ms", self.range_quality_hold_ms),
+            ("flow_quality_hold_ms", self.flow_quality_hold_ms),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("estimator.{name} must be 0 or more, got {v}"));
+            }
         }
         if !(self.predict_period_ms.is_finite() && (0.0..=100.0).contains(&self.predict_period_ms))
         {

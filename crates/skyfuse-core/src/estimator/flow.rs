@@ -1,13 +1,15 @@
 //! Optical flow (seed 001 pipeline, seed 000 calibration).
 //!
-//! Checks: quality, tilt below `range_max_tilt_rad` (tilted further, the camera sees a
-//! wall or the horizon, not the ground below: EKF2 gates flow with the range finder's
-//! tilt limit too), finite rates within `max_rate`, a height. Preprocessing: per-axis
-//! scale factors; rotation compensation with the flow module's own gyro (OPTICAL_FLOW_RAD
-//! style) or the IMU gyro low-passed to the flow's phase (3 Hz) and clamped; scaling by
-//! the height along the body's down axis (the module's ToF, else the latest range finder
-//! sample, else the fused height over the tilt cosine): v_body = (-c_y·d, c_x·d) for
-//! compensated rates c = scale·rate − ω (sample.rs convention: rate = ω_xy + (v_y, −v_x)/d).
+//! Checks: quality, and good for `flow_quality_hold_ms` since the last reading below it
+//! in the air (over poor texture what still passes reads slow), tilt below
+//! `range_max_tilt_rad` (tilted further, the camera sees a wall or the horizon, not the
+//! ground below: EKF2 gates flow with the range finder's tilt limit too), finite rates
+//! within `max_rate`, a height. Preprocessing: per-axis scale factors; rotation
+//! compensation with the flow module's own gyro (OPTICAL_FLOW_RAD style) or the IMU
+//! gyro low-passed to the flow's phase (3 Hz) and clamped; scaling by the height along
+//! the body's down axis (the module's ToF, else the latest range finder sample, else the
+//! fused height over the tilt cosine): v_body = (-c_y·d, c_x·d) for compensated rates
+//! c = scale·rate − ω (sample.rs convention: rate = ω_xy + (v_y, −v_x)/d).
 //! Rotation into the navigation frame by yaw and integration into a displacement
 //! (`OF_sum`). Fuse: the body-frame horizontal velocity. The calibrator (ArduPilot
 //! AP_OpticalFlow_Calibrator) estimates the per-axis scale from the fused velocity.
@@ -33,6 +35,8 @@ pub struct FlowState {
     pub last_t: Option<i64>,
     /// The rate noise this sensor shows, learnt from its innovations.
     pub noise: RateNoise,
+    /// The last sample below `flow_min_quality` in the air (poor texture), µs.
+    pub poor_t: Option<i64>,
 }
 
 impl Default for FlowState {
@@ -43,6 +47,7 @@ impl Default for FlowState {
             of_sum: Vector3::zeros(),
             last_t: None,
             noise: RateNoise::default(),
+            poor_t: None,
         }
     }
 }
@@ -229,6 +234,29 @@ impl FlowCalibrator {
     }
 }
 
+/// Why a good sample soon after a poor one in the air is not fused.
+const RECOVERING: &str =
+    "quality good again for less than flow_quality_hold_ms after a reading below flow_min_quality";
+/// Below this height a poor quality is the lens too close to focus (on the gear, in
+/// the take-off), not the ground's texture, m.
+const FLOW_FOCUS_HEIGHT_M: f64 = 0.3;
+
+/// A flow's height for judging its quality: its own ToF, else a range finder, else
+/// the filter's height above the terrain; none known is taken as in the air.
+fn near_ground(core: &Core, t: i64, f: &OpticalFlow) -> bool {
+    if core.ground.on_ground(t) || core.ground.range_says_ground(t) {
+        return true;
+    }
+    let height = f
+        .tof
+        .as_ref()
+        .map(|tof| tof.distance_m)
+        .filter(|d| d.is_finite())
+        .or_else(|| core.latest_range_at(t).map(|(_, d)| d))
+        .or_else(|| core.ekf.as_ref().map(|e| e.height_above_terrain()));
+    height.is_some_and(|h| h < FLOW_FOCUS_HEIGHT_M)
+}
+
 /// The flow's rate noise at `quality` (EKF2's EKF2_OF_N_MIN at 255 to EKF2_OF_N_MAX at
 /// the least usable quality, linearly): a sensor losing its texture reads slow and
 /// noisy before it says so.
@@ -341,11 +369,26 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
             super::ground::range_sample(&mut core.ground, t, tof.distance_m, min, true);
         }
     }
+    // Over poor texture (dark ground, water, a featureless floor) the samples its
+    // sensor still calls good read slow: the quality is drawn around the threshold,
+    // and what passes is the same blind camera. A poor reading in the air holds the
+    // sensor out for `flow_quality_hold_ms`, as a range finder's invalid one does
+    // (randomised draw 237: 14 s over dark ground, the passing samples read the speed
+    // 1-1.9 m/s slow with σ 0.2-0.45 m/s, and the east error grew to 21 m against σ 4.4 m).
+    let poor = f.quality < cfg.flow_min_quality && !near_ground(core, t, f);
+    let hold = (cfg.flow_quality_hold_ms * 1000.0) as i64;
+    let st = core.flow.get_or_insert_with(source, FlowState::default);
+    if poor {
+        st.poor_t = Some(t);
+    }
+    let unusable = unusable.or_else(|| {
+        st.poor_t
+            .is_some_and(|p| t >= p && t - p < hold)
+            .then_some(RECOVERING)
+    });
     if let Some(why) = unusable {
+        st.last_t = Some(t);
         core.reject(t, source, why, ctx);
-        core.flow
-            .get_or_insert_with(source, FlowState::default)
-            .last_t = Some(t);
         return;
     }
     let Some(fh) = flow_height(core, ctx, t, tof_lim, f) else {
