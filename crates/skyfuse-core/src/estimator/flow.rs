@@ -374,7 +374,8 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     // and what passes is the same blind camera. A poor reading in the air holds the
     // sensor out for `flow_quality_hold_ms`, as a range finder's invalid one does
     // (randomised draw 237: 14 s over dark ground, the passing samples read the speed
-    // 1-1.9 m/s slow with σ 0.2-0.45 m/s, and the east error grew to 21 m against σ 4.4 m).
+    // 1-1.9 m/s slow with σ 0.2-0.45 m/s, and the east error grew to 21 m against σ
+    // 4.4 m).
     let poor = f.quality < cfg.flow_min_quality && !near_ground(core, t, f);
     let hold = (cfg.flow_quality_hold_ms * 1000.0) as i64;
     let st = core.flow.get_or_insert_with(source, FlowState::default);

@@ -322,8 +322,9 @@ impl IntegrityState {
     /// the position they would have moved through its correlation with the velocity:
     /// one noisy flow sample refused over dark ground, taken as exact, put 57 m into
     /// the bound of a climb with no position source, for good; randomised draw 744:
-    /// 15.5 % valid airborne, the error under 2 m), not a refused position: a GNSS whose velocity passed while its positions were refused for a
-    /// minute (its multipath over, the estimate 4.3 m off on its last fixes) had the
+    /// 15.5 % valid airborne, the error under 2 m), not a refused position: a GNSS
+    /// whose velocity passed while its positions were refused for a minute (its
+    /// multipath over, the estimate 4.3 m off on its last fixes) had the
     /// covariance sent claim 0.7 m all along (randomised draw 74: 2 595 poses beyond
     /// 5σ). A position that ends a refusal of [`LONG_REFUSAL_US`] or more does not
     /// settle it either: it may be the liar passing the gate at its edge (draw 55: a fix
@@ -773,11 +774,6 @@ mod tests {
         assert!(Channels::of(&m).horizontal && Channels::of(&m).vertical);
     }
 
-    /// A channel whose every measurement is refused carries the largest shift a
-    /// refused one would have made plus the refused velocities integrated over the
-    /// time refused (each step at most [`DRIFT_STEP_MAX_US`]); one accepted
-    /// measurement of that channel's position ends it (a velocity only the drift),
-    /// a long refusal fading rather than gone, and the other channel keeps its own.
     /// A refused velocity's shift (the position it would have moved, were it exact) is
     /// answered by a velocity accepted on its channel; a refused position's is not.
     #[test]
@@ -819,6 +815,11 @@ mod tests {
         assert_eq!(st.refused_extent(400_000), Vector3::new(2.0, 1.0, 0.0));
     }
 
+    /// A channel whose every measurement is refused carries the largest shift a
+    /// refused one would have made plus the refused velocities integrated over the
+    /// time refused (each step at most [`DRIFT_STEP_MAX_US`]); one accepted
+    /// measurement of that channel's position ends it (a velocity only the drift),
+    /// a long refusal fading rather than gone, and the other channel keeps its own.
     #[test]
     fn refused_measurements_bound_the_estimate_until_one_is_accepted() {
         let (h, v) = (
