@@ -382,11 +382,8 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
     if poor {
         st.poor_t = Some(t);
     }
-    let unusable = unusable.or_else(|| {
-        st.poor_t
-            .is_some_and(|p| t >= p && t - p < hold)
-            .then_some(RECOVERING)
-    });
+    let unusable =
+        unusable.or_else(|| super::range::in_hold(st.poor_t, t, hold).then_some(RECOVERING));
     if let Some(why) = unusable {
         st.last_t = Some(t);
         core.reject(t, source, why, ctx);

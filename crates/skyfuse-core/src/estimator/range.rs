@@ -41,6 +41,12 @@ const MAV_SENSOR_DOWN: u8 = 25;
 /// `distance_sensor` 0, which EKF2 does not use either).
 const SIGNAL_INVALID: u8 = 1;
 
+/// A sensor whose last bad reading was at `bad_t` is still in its quality hold of
+/// `hold_us` at `t` (a reading from before the bad one, arriving late, is not).
+pub(super) fn in_hold(bad_t: Option<i64>, t: i64, hold_us: i64) -> bool {
+    bad_t.is_some_and(|b| t >= b && t - b < hold_us)
+}
+
 pub fn checks(r: &Range, min: f64, max: f64) -> Result<(), &'static str> {
     if !r.distance_m.is_finite() {
         return Err("distance not finite");
@@ -93,11 +99,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, r: &Range) {
         core.reject(t, source, why, ctx);
         return;
     }
-    if core
-        .range_bad
-        .get(source)
-        .is_some_and(|&b| t - b < hold && t >= b)
-    {
+    if in_hold(core.range_bad.get(source).copied(), t, hold) {
         core.reject(t, source, RECOVERING, ctx);
         return;
     }

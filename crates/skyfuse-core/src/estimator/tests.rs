@@ -993,7 +993,7 @@ fn a_vehicle_carried_while_disarmed_is_not_held_on_the_ground() {
 /// sample is poor and the others read 0.5 m/s that is not there: none of them is fused
 /// (each comes within `flow_quality_hold_ms` of a poor one), and the flow is fused
 /// again once it has read good for the hold (a 2 s walk at 0.5 m/s from 10 s moves the
-/// track 1 m). Without the hold the lie moved the track by 0.7 m.
+/// track 1 m). Without the hold the lie moved the track by 1.45 m.
 #[test]
 fn a_flow_is_held_out_after_a_poor_reading_in_the_air() {
     let mut est = Estimator::new(flow_range_cfg());
