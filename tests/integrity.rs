@@ -237,6 +237,20 @@ fn a_high_flow_keeps_its_floor_in_velocity() {
     assert_available_and_consistent(54, 0.8);
 }
 
+/// Climbs on slow flows above 8 m with a barometer (draws 440, a 12 Hz flow to 27.8 m,
+/// and 3, a 6 Hz flow to 10.9 m): the learnt noise's lowest floor was a variance per
+/// sample, the same for a 6 Hz flow as for a 57 Hz one, so per second the slow flow
+/// was fused as ten times noisier than the fast one at the same floor. The position's
+/// σ outgrew the alert limit while the error stayed metres (53.6 and 76.3 % valid
+/// airborne). The floor is one information rate, in proportion to the flow's sample
+/// rate: 86.8 and 92.2 %, inside the bound.
+#[test]
+fn a_slow_flow_keeps_the_floor_per_second_not_per_sample() {
+    for i in [440, 3] {
+        assert_available_and_consistent(i, 0.85);
+    }
+}
+
 /// Draw `i` valid for at least `min_valid` of its airborne time, and consistent.
 fn assert_available_and_consistent(i: u64, min_valid: f64) {
     let r = run_draw(SEED, i, EstimatorConfig::default(), HealthConfig::default());
