@@ -532,7 +532,7 @@ pub const DEFAULT_OUTPUT_PREFIX: &str = "skyfuse/{vehicle}";
 pub const DEFAULT_POSE_KEY: &str = "data_fusion/pose_msg";
 pub const DEFAULT_DEBUG_PREFIX: &str = "data_fusion";
 pub const DEFAULT_ROS_FRAME_ID: &str = "map";
-pub const DEFAULT_POSE_RATE_HZ: f64 = 50.0;
+pub const DEFAULT_POSE_RATE_HZ: f64 = crate::rate_limit::DEFAULT_POSE_RATE_HZ;
 /// Enough for rqt_plot to draw the seed's series smoothly; at 50 Hz the eight series
 /// were 370 messages a second (14 KB/s), more messages than all the other outputs.
 pub const DEFAULT_DEBUG_RATE_HZ: f64 = 10.0;

@@ -32,7 +32,8 @@
 //! - [`cli`]: the command line; `main.rs` only calls [`cli::main`].
 
 pub use skyfuse_core::{
-    codec, estimator, eval, event, fusion, geo, health, offline, replay, sample, sync, verdict,
+    codec, estimator, eval, event, fusion, geo, health, offline, rate_limit, replay, sample, sync,
+    verdict,
 };
 
 pub mod app;

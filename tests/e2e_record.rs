@@ -73,11 +73,10 @@ fn live_difference(stdout: &str) -> (usize, f64, f64) {
 const SETTLE_S: f64 = 1.0;
 
 /// How the replay's valid poses (`fused.tum`) differ from those sent live (`live.tum`)
-/// from [`SETTLE_S`] on: each live pose against the closest of the replayed poses within
-/// 10 ms of it (the window `skyfuse replay` pairs in). Not the nearest in time: the
-/// replay's 50 Hz poses fall 5 ms off the live ones, and a correction landing between
-/// the two stamps put the step on one side only (0.14 m, a range finder's height fix at
-/// 5.17 s, 1 run in 6 under load).
+/// from [`SETTLE_S`] on: each live pose against the replayed pose nearest in time, within
+/// 10 ms. The replay records on the live output's grid, so that is the same pose; its
+/// stamp can differ by a little where the live service followed the simulator's clock
+/// rate (under load it refines the rate, and maps pose times back to the host's).
 struct Difference {
     matched: usize,
     rms: f64,
@@ -96,10 +95,10 @@ fn settled_difference(out: &Path) -> Difference {
         let closest = fused
             .iter()
             .filter(|(ft, _)| (ft - t).abs() <= 0.01)
+            .min_by(|(a, _), (b, _)| (a - t).abs().total_cmp(&(b - t).abs()))
             .map(|(_, q)| {
                 ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
-            })
-            .min_by(f64::total_cmp);
+            });
         if let Some(e) = closest {
             d.push((e, *t));
         }
@@ -266,11 +265,14 @@ fn a_recorded_flight_reads_in_the_mcap_tools_and_replays_to_the_poses_sent_live(
         d.matched, d.rms, d.p95, d.max, d.max_at
     );
     assert!(d.matched > 200, "{} poses compared:\n{stdout}", d.matched);
-    // Not zero: live, samples of different inputs can reach the filter in another order
-    // than their arrival stamps in the recording (several receiving threads); under load
-    // the pose at each 10 Hz GNSS fix is 2-8 cm apart, one in five.
+    // The replay is the live run: the recording's order is the order the filter fused
+    // in (the arrival is stamped and the sample queued under one lock), and the replay
+    // records the poses the service sent, on the same output grid. What is left is the
+    // live pose's JSON rounded to a millimetre, and under load the stamps mapped through
+    // the simulator's clock rate (4 mm). Before both: 2-14 cm at the poses straddling a
+    // GNSS fix, one run in three under load.
     assert!(
-        d.rms < 0.02 && d.max < 0.1,
+        d.rms < 0.005 && d.max < 0.02,
         "RMS {:.4} m, 95th percentile {:.4} m, max {:.4} m at {:.2} s:\n{stdout}",
         d.rms,
         d.p95,

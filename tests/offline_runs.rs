@@ -48,6 +48,7 @@ fn replay(
         reference: reference.into(),
         window: None,
         t0_us: None,
+        pose_rate_hz: 0.0,
     };
     run_replay(
         name,

@@ -169,10 +169,15 @@ fn open_error_message(raw: &str) -> String {
     out
 }
 
-/// Where the subscribers' samples go, on Zenoh's thread.
+/// Where the subscribers' samples go, on Zenoh's thread, in two steps: queued in
+/// arrival order (under the subscribers' shared order lock), then fused by whichever
+/// thread finds the estimator free.
 pub trait SampleSink: Send + Sync + 'static {
-    /// Take a sample, never waiting; `false`: not taken (counted as dropped).
-    fn take(&self, s: Sample) -> bool;
+    /// Queue a sample, never waiting on the estimator; `false`: not taken (counted as
+    /// dropped).
+    fn queue(&self, s: Sample) -> bool;
+    /// Fuse what is queued unless another thread is fusing (which then fuses it).
+    fn fuse_queued(&self);
 }
 
 /// Declare one subscriber per enabled input key expression.
@@ -183,6 +188,13 @@ pub async fn subscribe_inputs(
     tap: crate::tap::Tap,
 ) -> Result<Vec<zenoh::pubsub::Subscriber<()>>, ZenohError> {
     let mut subs = Vec::new();
+    // Several Zenoh threads call back at once. Stamping the arrival, recording the
+    // payload and queueing its samples happen under one lock, so the recording's order
+    // is the order the estimator fuses in and a replay of it is the live run (without
+    // it, a GNSS fix recorded before an IMU sample could be fused after it live). The
+    // arrivals it hands out never go back, even when the host's clock does. Fusing is
+    // outside it: a callback never waits on the filter under the lock.
+    let order = Arc::new(std::sync::Mutex::new(0i64));
     for (idx, input) in ingest.inputs.iter().enumerate() {
         if !input.config.enabled {
             continue;
@@ -191,28 +203,34 @@ pub async fn subscribe_inputs(
             let ingest = ingest.clone();
             let sink = sink.clone();
             let tap = tap.clone();
+            let order = order.clone();
             let sub = session
                 .declare_subscriber(key.as_str())
                 .callback(move |sample: zenoh::sample::Sample| {
                     let Some(input) = ingest.inputs.get(idx) else {
                         return;
                     };
-                    let arrival = now_us();
                     let payload = sample.payload().to_bytes();
                     let key = sample.key_expr().as_str();
-                    tap.input(arrival, idx, key, &payload);
-                    if input.config.transport == crate::config::RosTransport::RmwZenoh {
-                        let attachment = sample.attachment().map(|a| a.to_bytes());
-                        if !ingest.rmw_attachment_ok(input, attachment.as_deref(), arrival) {
-                            return;
+                    {
+                        let mut last = crate::sync::lock(&order);
+                        let arrival = now_us().max(*last);
+                        *last = arrival;
+                        tap.input(arrival, idx, key, &payload);
+                        if input.config.transport == crate::config::RosTransport::RmwZenoh {
+                            let attachment = sample.attachment().map(|a| a.to_bytes());
+                            if !ingest.rmw_attachment_ok(input, attachment.as_deref(), arrival) {
+                                return;
+                            }
+                        }
+                        for s in ingest.accept(input, key, &payload, arrival) {
+                            tap.decoded(idx, &s);
+                            if !sink.queue(s) {
+                                input.counters.dropped.fetch_add(1, Relaxed);
+                            }
                         }
                     }
-                    for s in ingest.accept(input, key, &payload, arrival) {
-                        tap.decoded(idx, &s);
-                        if !sink.take(s) {
-                            input.counters.dropped.fetch_add(1, Relaxed);
-                        }
-                    }
+                    sink.fuse_queued();
                 })
                 .await
                 .map_err(|e| ZenohError::Subscribe {

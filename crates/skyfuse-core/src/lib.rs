@@ -22,6 +22,7 @@
 //! - [`dead_reckoning`]: plain flow dead reckoning, the baseline flow fusion must beat.
 //! - [`eval`]: TUM trajectories and the APE metric as evo computes it.
 //! - [`offline`]: scenario and replay runs through the fusion core, files and scores.
+//! - [`rate_limit`]: the output's rate, shared by the service and offline runs.
 //! - [`shared_data`]: where tests find third-party data (../shared/data), and skip.
 //! - [`source_map`]: per-source state looked up by name on every sample.
 //! - [`sync`]: a lock that outlives a panicking holder.
@@ -38,6 +39,7 @@ pub mod fusion;
 pub mod geo;
 pub mod health;
 pub mod offline;
+pub mod rate_limit;
 pub mod replay;
 pub mod sample;
 pub mod shared_data;

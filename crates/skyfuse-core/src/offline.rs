@@ -13,6 +13,7 @@ use crate::eval::{evo_ape, ApeOptions, ApeStats, Trajectory};
 use crate::fusion::{Fusion, InputList, InputSpec};
 use crate::geo::LocalEnu;
 use crate::health::HealthConfig;
+use crate::rate_limit::{RateLimit, DEFAULT_POSE_RATE_HZ};
 use crate::sample::{GnssFixType, Sample, SensorData, SensorKind};
 use crate::sim::scenario::Scenario;
 use crate::sim::truth::truth_of;
@@ -24,8 +25,6 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 
-/// Fused poses are written at most this often (sample time), µs: 50 Hz.
-pub const FUSED_OUTPUT_INTERVAL_US: i64 = 20_000;
 /// How often the main filter's state is written to `filter_state.jsonl`, µs.
 const FILTER_STATE_INTERVAL_US: i64 = 1_000_000;
 
@@ -94,7 +93,10 @@ pub struct Recorder {
     /// (`filter_state.jsonl`: for a developer tracing one flight).
     pub filter_states: Vec<String>,
     last_state_us: Option<i64>,
-    last_fused_us: Option<i64>,
+    /// The service's pose output rate: the poses recorded are the ones it would send.
+    pose_rate: RateLimit,
+    /// The last pose time seen (the service sends each new pose once).
+    last_pose_us: Option<i64>,
     gnss_origin: Option<LocalEnu>,
     /// ENU origins of geodetic estimates, per source.
     geodetic_origins: SourceMap<LocalEnu>,
@@ -148,9 +150,17 @@ fn push(tr: &mut Trajectory, t: f64, p: Vector3<f64>, q: UnitQuaternion<f64>) {
 }
 
 impl Recorder {
+    /// Poses recorded at the service's default output rate.
     pub fn new(t0_us: i64) -> Self {
+        Self::with_pose_rate(t0_us, DEFAULT_POSE_RATE_HZ)
+    }
+
+    /// Poses recorded at `pose_rate_hz` (the recorded service's `[output]
+    /// pose_rate_hz`; 0: every pose).
+    pub fn with_pose_rate(t0_us: i64, pose_rate_hz: f64) -> Self {
         Self {
             t0_us,
+            pose_rate: RateLimit::hz(pose_rate_hz),
             ..Self::default()
         }
     }
@@ -252,10 +262,12 @@ impl Recorder {
                 self.filter_states.push(line.to_string());
             }
         }
-        if self
-            .last_fused_us
-            .is_some_and(|l| time_us < l + FUSED_OUTPUT_INTERVAL_US)
-        {
+        // As the pipeline does: each new pose once, through the output's rate limit.
+        if self.last_pose_us == Some(time_us) {
+            return;
+        }
+        self.last_pose_us = Some(time_us);
+        if !self.pose_rate.due(time_us) {
             return;
         }
         let Some(mut pose) = est.pose() else { return };
@@ -264,7 +276,6 @@ impl Recorder {
             let (la, lo, al) = LocalEnu::new(lat, lon, alt).to_geodetic(pose.position);
             pose.position = home.to_enu(la, lo, al);
         }
-        self.last_fused_us = Some(pose.time_us);
         let t = self.secs(pose.time_us);
         push(&mut self.fused_all, t, pose.position, pose.orientation);
         self.validity.push((t, pose.valid));
@@ -1396,6 +1407,9 @@ pub struct ReplayOptions {
     /// live input starts at its first arrival instead: stamps there are the sensors' own
     /// clocks (an autopilot's time since boot), arrivals the host's.
     pub t0_us: Option<i64>,
+    /// The poses recorded are the ones sent at this rate (`[output] pose_rate_hz`); 0:
+    /// the default.
+    pub pose_rate_hz: f64,
 }
 
 /// The reference a replay scores against when none is named: a simulator's truth, else
@@ -1535,7 +1549,12 @@ pub fn run_replay(
     let mode = cfg.mode;
     let mut fusion = Fusion::new(cfg, health, &survey.inputs());
     let t0 = opts.t0_us.or(survey.first.and_then(|f| f.1)).unwrap_or(0);
-    let mut rec = Recorder::new(t0);
+    let pose_rate_hz = if opts.pose_rate_hz > 0.0 {
+        opts.pose_rate_hz
+    } else {
+        DEFAULT_POSE_RATE_HZ
+    };
+    let mut rec = Recorder::with_pose_rate(t0, pose_rate_hz);
     let n = samples.len_hint().max(1);
     let mut i = 0;
     samples.for_each(&mut |s| {
