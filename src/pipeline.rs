@@ -531,7 +531,7 @@ impl Inlet {
     }
 
     pub fn is_closed(&self) -> bool {
-        crate::sync::lock(&self.pipeline).is_none()
+        self.closed.load(Relaxed)
     }
 
     /// Stop: the pipeline is taken out (its pose and debug channels close with it, so

@@ -48,7 +48,7 @@ fn replay(
         reference: reference.into(),
         window: None,
         t0_us: None,
-        pose_rate_hz: 0.0,
+        pose_rate_hz: None,
     };
     run_replay(
         name,

@@ -239,7 +239,7 @@ pub(super) fn eval(
                 reference: reference.clone(),
                 window: None,
                 t0_us: flight.t0_us(),
-                pose_rate_hz: flight.config().output.pose_rate_hz,
+                pose_rate_hz: Some(flight.config().output.pose_rate_hz),
             };
             eprintln!("  {set}: fusing {} against {reference}", fuse.join(", "));
             let dir = out.join(&name).join(set);

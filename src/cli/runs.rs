@@ -400,7 +400,7 @@ pub(super) fn replay(
         reference: reference.to_string(),
         window,
         t0_us,
-        pose_rate_hz: c.output.pose_rate_hz,
+        pose_rate_hz: Some(c.output.pose_rate_hz),
     };
     let summary = offline::run_replay(
         &path.display().to_string(),

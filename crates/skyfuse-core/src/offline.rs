@@ -1407,9 +1407,9 @@ pub struct ReplayOptions {
     /// live input starts at its first arrival instead: stamps there are the sensors' own
     /// clocks (an autopilot's time since boot), arrivals the host's.
     pub t0_us: Option<i64>,
-    /// The poses recorded are the ones sent at this rate (`[output] pose_rate_hz`); 0:
-    /// the default.
-    pub pose_rate_hz: f64,
+    /// The poses recorded are the ones sent at this rate (`[output] pose_rate_hz`);
+    /// `None`: the service's default.
+    pub pose_rate_hz: Option<f64>,
 }
 
 /// The reference a replay scores against when none is named: a simulator's truth, else
@@ -1549,12 +1549,7 @@ pub fn run_replay(
     let mode = cfg.mode;
     let mut fusion = Fusion::new(cfg, health, &survey.inputs());
     let t0 = opts.t0_us.or(survey.first.and_then(|f| f.1)).unwrap_or(0);
-    let pose_rate_hz = if opts.pose_rate_hz > 0.0 {
-        opts.pose_rate_hz
-    } else {
-        DEFAULT_POSE_RATE_HZ
-    };
-    let mut rec = Recorder::with_pose_rate(t0, pose_rate_hz);
+    let mut rec = Recorder::with_pose_rate(t0, opts.pose_rate_hz.unwrap_or(DEFAULT_POSE_RATE_HZ));
     let n = samples.len_hint().max(1);
     let mut i = 0;
     samples.for_each(&mut |s| {

@@ -593,26 +593,6 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
             pl[a] = pl[a].max(sigma0[a] * f.sqrt() * cfg.k_ffmd);
         }
     }
-    // A GNSS's slow error is learnt only through its correlation time, which nobody
-    // knows: receivers wander over half a minute to many minutes. With one receiver on
-    // a channel, the filter's σ there falls below the slow error's own spread only by
-    // taking it to average out over `gnss_bias_tau_s`; where it does not, the σ sent
-    // lies (randomised draw 326: 6 m under the truth for 460 s, sent with σ 1.3 m).
-    // The σ sent does not go below it. The protection level is the integrity bound,
-    // not the accuracy (as ARAIM keeps one covariance for each): it keeps the filter's
-    // own σ, with the receiver's unreported error on top (below), and holds the truth
-    // on every randomised flight; taken to the floor too, the vertical one of receivers
-    // reporting 3-5 m passed the 20 m alert limit and flights valid 95 % fell to 0-10 %.
-    for (a, horizontal) in [(0, true), (1, true), (2, false)] {
-        if gnss_receivers(core, t, horizontal, window, None) != 1 {
-            continue;
-        }
-        let var0 = p0[(a, a)].max(0.0);
-        let floor = main.gnss_bias_std[a].powi(2) - var0;
-        if floor > 0.0 {
-            unresolved[a] = unresolved[a].max(floor);
-        }
-    }
     // The refused measurements' case (see the module's docs).
     let refused = core.integrity.refused_extent(t);
     for a in 0..3 {
@@ -621,13 +601,36 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
             unresolved[a] = unresolved[a].max(refused[a] * refused[a]);
         }
     }
-    // A GNSS that no second receiver checks: its unreported error (see
-    // `DEFAULT_GNSS_FAULT_HORIZONTAL_M`) on the channels it holds.
-    if gnss_receivers(core, t, true, window, None) == 1 {
+    // A GNSS that no second receiver checks, per channel (horizontal, vertical).
+    let lone =
+        [true, false].map(|horizontal| gnss_receivers(core, t, horizontal, window, None) == 1);
+    // Its slow error is learnt only through its correlation time, which nobody knows:
+    // receivers wander over half a minute to many minutes. The filter's σ falls below
+    // the slow error's own spread only by taking it to average out over
+    // `gnss_bias_tau_s`; where it does not, the σ sent lies (randomised draw 326: 6 m
+    // under the truth for 460 s, sent with σ 1.3 m). The σ sent does not go below it.
+    // The protection level is the integrity bound, not the accuracy (as ARAIM keeps one
+    // covariance for each): it keeps the filter's own σ, with the receiver's unreported
+    // error on top (below), and holds the truth on every randomised flight; taken to
+    // the floor too, the vertical one of receivers reporting 3-5 m passed the 20 m
+    // alert limit and flights valid 95 % fell to 0-10 %.
+    for a in 0..3 {
+        if !lone[usize::from(a == 2)] {
+            continue;
+        }
+        let var0 = p0[(a, a)].max(0.0);
+        let floor = main.gnss_bias_std[a].powi(2) - var0;
+        if floor > 0.0 {
+            unresolved[a] = unresolved[a].max(floor);
+        }
+    }
+    // Its unreported error (see `DEFAULT_GNSS_FAULT_HORIZONTAL_M`) on the channels it
+    // holds.
+    if lone[0] {
         pl.x += cfg.gnss_fault_horizontal_m / std::f64::consts::SQRT_2;
         pl.y += cfg.gnss_fault_horizontal_m / std::f64::consts::SQRT_2;
     }
-    if gnss_receivers(core, t, false, window, None) == 1 {
+    if lone[1] {
         pl.z += cfg.gnss_fault_vertical_m;
     }
     if !restart.is_empty() {
