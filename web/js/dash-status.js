@@ -141,6 +141,12 @@ function renderEstimator(st) {
     }
     const excluded = e.integrity && Array.isArray(e.integrity.excluded) ? e.integrity.excluded : [];
     if (excluded.length) rows.push(['excluded', excluded.join(', '), 'full bad']);
+    const aside = e.integrity && e.integrity.set_aside;
+    if (aside && Array.isArray(aside.separation)) {
+      // The exclusion's other answer: were the source right, the estimate is this far off.
+      const d = Math.hypot(aside.separation[0], aside.separation[1]);
+      rows.push(['were it right', `${aside.source}: ${fmt(d, 1)} m H / ${fmt(Math.abs(aside.separation[2]), 1)} m V (in the bound)`, 'full']);
+    }
     rows.push(['sources used', Array.isArray(e.sources_used) && e.sources_used.length ? e.sources_used.join(', ') : 'none', 'full']);
     if (e.calibration && e.calibration.state) {
       const c = e.calibration;

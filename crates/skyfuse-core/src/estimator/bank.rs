@@ -37,11 +37,25 @@ pub struct Sub {
     pub took_refused: bool,
 }
 
+/// The solution an exclusion set aside: the filter that kept the excluded source, fed
+/// everything, the excluded source included, while it stays out. The test that
+/// excluded it said only that the two solutions departed beyond their threshold, not
+/// which is wrong; until the source agrees again, what is sent covers both.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shadow {
+    /// The excluded source it keeps.
+    pub with: String,
+    pub ekf: Ekf,
+    /// When the exclusion made it, µs.
+    pub since: i64,
+}
+
 /// The main filter and its sub-filters.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Bank {
     main: Ekf,
     subs: Vec<Sub>,
+    shadow: Option<Shadow>,
 }
 
 impl Deref for Bank {
@@ -56,6 +70,7 @@ impl Bank {
         Self {
             main,
             subs: Vec::new(),
+            shadow: None,
         }
     }
 
@@ -65,6 +80,11 @@ impl Bank {
 
     pub fn subs(&self) -> &[Sub] {
         &self.subs
+    }
+
+    /// The solution the last exclusion set aside, while its source is out.
+    pub fn shadow(&self) -> Option<&Shadow> {
+        self.shadow.as_ref()
     }
 
     /// The sub-filter without `source`, if there is one.
@@ -79,11 +99,17 @@ impl Bank {
         for s in &mut self.subs {
             f(&mut s.ekf);
         }
+        if let Some(s) = self.shadow.as_mut() {
+            f(&mut s.ekf);
+        }
     }
 
     /// The same change to every filter, returning the main filter's result.
     pub fn each_main<R>(&mut self, mut f: impl FnMut(&mut Ekf) -> R) -> R {
         for s in &mut self.subs {
+            f(&mut s.ekf);
+        }
+        if let Some(s) = self.shadow.as_mut() {
             f(&mut s.ekf);
         }
         f(&mut self.main)
@@ -103,6 +129,10 @@ impl Bank {
             let mk = m.about(main_x, &s.ekf.x);
             *took = s.ekf.update(&mk, gate, false).accepted;
         }
+        if let Some(s) = self.shadow.as_mut() {
+            let mk = m.about(main_x, &s.ekf.x);
+            s.ekf.update(&mk, gate, false);
+        }
         let out = self.main.update(m, gate, false);
         if !out.accepted {
             for (s, took) in self.subs.iter_mut().zip(accepted) {
@@ -110,6 +140,22 @@ impl Bank {
             }
         }
         out
+    }
+
+    /// A measurement of the excluded `source`: only the solution that keeps it takes it.
+    pub fn update_shadow(&mut self, m: &Measurement, gate: f64, source: &str) {
+        let main_x = &self.main.x;
+        if let Some(s) = self.shadow.as_mut().filter(|s| s.with == source) {
+            let mk = m.about(main_x, &s.ekf.x);
+            s.ekf.update(&mk, gate, false);
+        }
+    }
+
+    /// `source` is fused again (or gone): its set-aside solution with it.
+    pub fn drop_shadow(&mut self, source: &str) {
+        if self.shadow.as_ref().is_some_and(|s| s.with == source) {
+            self.shadow = None;
+        }
     }
 
     /// A reset to the measurement `m` (every filter): the states in `states` forget
@@ -124,6 +170,7 @@ impl Bank {
             s.since = t;
             s.took_refused = false;
         }
+        self.shadow = None;
     }
 
     /// Start the sub-filter without `source` as a copy of the main filter at `t`
@@ -166,7 +213,12 @@ impl Bank {
             return false;
         };
         let clean = self.subs.swap_remove(i);
-        self.main = clean.ekf;
+        let kept = std::mem::replace(&mut self.main, clean.ekf);
+        self.shadow = Some(Shadow {
+            with: source.to_string(),
+            ekf: kept,
+            since: t,
+        });
         for s in &mut self.subs {
             s.ekf = self.main.clone();
             s.since = t;
@@ -250,5 +302,48 @@ mod tests {
         assert!(!took(&b, "gps"), "the one without the GNSS never saw it");
         b.restart_sub("camera", 1);
         assert!(!took(&b, "camera"));
+    }
+
+    /// An exclusion sets the main solution aside instead of dropping it: it goes on
+    /// with the excluded source (and every other), so that what is sent can cover the
+    /// case that the source was right, until it is fused again or a reset makes every
+    /// filter agree.
+    #[test]
+    fn an_exclusion_keeps_the_solution_it_set_aside() {
+        let mut b = bank();
+        b.ensure_sub("gps", 0);
+        for _ in 0..5 {
+            let m = position(Vector3::new(3.0, 0.0, 0.0), b.main(), 0.1);
+            b.update(&m, 1e9, Some("gps"));
+        }
+        let with_gps = b.main().pos();
+        assert!(b.exclude("gps", 7));
+        let shadow = b.shadow().expect("the set-aside solution");
+        assert_eq!((shadow.with.as_str(), shadow.since), ("gps", 7));
+        assert_eq!(shadow.ekf.pos(), with_gps);
+        assert!(
+            (b.main().pos() - with_gps).norm() > 2.0,
+            "the main is without it"
+        );
+        // Only the set-aside solution takes the excluded source; every filter takes
+        // the others.
+        let m = position(Vector3::new(3.0, 0.0, 0.0), b.main(), 0.1);
+        b.update_shadow(&m, 1e9, "gps");
+        assert!((b.main().pos() - with_gps).norm() > 2.0);
+        let before = b.shadow().expect("shadow").ekf.pos();
+        let m = position(Vector3::new(0.0, 1.0, 0.0), b.main(), 0.1);
+        b.update(&m, 1e9, Some("flow"));
+        assert!(b.shadow().expect("shadow").ekf.pos().y > before.y);
+        b.update_shadow(&m, 1e9, "flow");
+        b.drop_shadow("flow");
+        assert!(b.shadow().is_some(), "only its own source drops it");
+        b.drop_shadow("gps");
+        assert!(b.shadow().is_none());
+        // A reset makes every filter agree: nothing is left aside.
+        b.ensure_sub("gps", 8);
+        assert!(b.exclude("gps", 9));
+        let m = position(Vector3::zeros(), b.main(), 0.1);
+        b.reset_to(&m, &[IDX_P, IDX_P + 1, IDX_P + 2], 1.0, 10);
+        assert!(b.shadow().is_none());
     }
 }

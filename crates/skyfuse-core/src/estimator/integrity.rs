@@ -13,7 +13,12 @@
 //! - **Exclusion.** When a test fails, the source whose sub-filter departs most is
 //!   excluded: its solution becomes the main one, the event names the source and the
 //!   figures, and the source's samples are only tested, not fused, until they have
-//!   agreed with the estimate for `readmit_s`.
+//!   agreed with the estimate for `readmit_s`. The test says that the two solutions
+//!   depart, not which one is wrong (a solution without the only GNSS whose heading
+//!   the linearisation made sure of, randomised draw 488): the main solution is set
+//!   aside, not dropped, and goes on with the excluded source; until it is fused again
+//!   the protection level and the covariance sent cover the case that it was right.
+//!   An excluded liar then shows what it claims in the bound, as a refused one does.
 //! - **Protection levels**, per axis `PL = max(K_ffmd·σ₀, max_k (T_k + K_md·σ_k))` over
 //!   the monitored sub-filters; horizontal `HPL = √(PL_E² + PL_N²)`, vertical the up
 //!   axis's. The pose is valid only with `HPL ≤ horizontal_alert_m` and
@@ -453,6 +458,9 @@ pub(super) fn excluded_sample(core: &mut Core, ctx: &Ctx, t: i64, source: &str, 
     }
     let excluded_s = (t - x.since) as f64 * 1e-6;
     core.integrity.excluded.retain(|s, _| s != source);
+    if let Some(bank) = core.ekf.as_mut() {
+        bank.drop_shadow(source);
+    }
     core.event(
         t,
         Some(source),
@@ -582,6 +590,16 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
         }
         if tests[i].source != sub.without {
             tests[i].source = sub.without.clone();
+        }
+    }
+    // The solution an exclusion set aside (see `bank::Shadow`): were the excluded
+    // source right, the estimate is off by the separation from it.
+    if let Some(shadow) = bank.shadow() {
+        let d = x0 - shadow.ekf.pos();
+        let sigma_s = shadow.ekf.cov3(IDX_P).diagonal().map(|v| v.max(0.0).sqrt());
+        for a in 0..3 {
+            pl[a] = pl[a].max(d[a].abs() + cfg.k_md * sigma_s[a]);
+            unresolved[a] = unresolved[a].max(d[a] * d[a]);
         }
     }
     // What the accepted measurements say of the filter's own σ.
@@ -732,7 +750,7 @@ fn exclude(core: &mut Core, t: i64, test: &SeparationTest, ratio: f64) {
         t,
         Some(source),
         format!(
-            "integrity: {source} excluded: the estimate with it departs from the one without it by ({e:.2}, {n:.2}, {u:.2}) m ENU against σ ({se:.2}, {sn:.2}, {su:.2}) m, {ratio:.1}× the threshold; the solution without it is the estimate now"
+            "integrity: {source} excluded: the estimate with it departs from the one without it by ({e:.2}, {n:.2}, {u:.2}) m ENU against σ ({se:.2}, {sn:.2}, {su:.2}) m, {ratio:.1}× the threshold; the solution without it is the estimate now, the one with it is kept beside and bounds what is sent until {source} agrees again"
         ),
         Event::IntegrityExclusion {
             separation: test.separation,

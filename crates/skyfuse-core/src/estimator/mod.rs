@@ -861,6 +861,14 @@ impl Estimator {
                     .map(|(s, _)| s.clone())
                     .collect(),
                 exclusions: c.integrity.exclusions,
+                set_aside: c.ekf.as_ref().and_then(|b| {
+                    let s = b.shadow()?;
+                    let d = b.main().pos() - s.ekf.pos();
+                    Some(status::SetAside {
+                        source: s.with.clone(),
+                        separation: [d.x, d.y, d.z],
+                    })
+                }),
             },
         }
     }

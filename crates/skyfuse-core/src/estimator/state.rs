@@ -338,6 +338,22 @@ impl Core {
             // Excluded by the integrity monitor: tested, not fused, until it agrees
             // again for long enough.
             let out = bank.innovation_test(m, gate);
+            // The solution that kept it takes it (see `bank::Shadow`).
+            if bank.shadow().is_some_and(|s| s.with == source) {
+                let delayed;
+                let m = if self.imu_drives(t, ctx) && ctx.cfg.delay_std_s > 0.0 {
+                    let Some(bank) = self.ekf.as_mut() else {
+                        return false;
+                    };
+                    delayed = with_delay(bank, source, m, extra, ctx.cfg.delay_std_s);
+                    &delayed
+                } else {
+                    m
+                };
+                if let Some(bank) = self.ekf.as_mut() {
+                    bank.update_shadow(m, gate, source);
+                }
+            }
             let st = self.stat(source);
             st.count_test(t, out.test_ratio);
             st.kind = kind;

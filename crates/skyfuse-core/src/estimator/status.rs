@@ -41,6 +41,18 @@ pub struct IntegrityStatus {
     pub tests: Vec<super::integrity::SeparationTest>,
     pub excluded: Vec<String>,
     pub exclusions: u64,
+    /// The solution the last exclusion set aside, while its source is out: the
+    /// source it keeps and where it is against the estimate, ENU m. The bound sent
+    /// covers it.
+    pub set_aside: Option<SetAside>,
+}
+
+/// See [`IntegrityStatus::set_aside`].
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct SetAside {
+    pub source: String,
+    /// Estimate minus the set-aside solution, ENU, m.
+    pub separation: [f64; 3],
 }
 
 /// Protection levels: horizontal and vertical bounds on the position error, m, and the
