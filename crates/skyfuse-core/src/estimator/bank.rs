@@ -16,6 +16,7 @@
 //! bank, so no filter can be changed alone by mistake.
 
 use super::ekf::{Ekf, Measurement, UpdateOutcome};
+use nalgebra::DVector;
 use std::ops::Deref;
 
 /// Most sub-filters the bank keeps (one per aiding source): beyond, the rest share the
@@ -46,8 +47,6 @@ pub struct Shadow {
     /// The excluded source it keeps.
     pub with: String,
     pub ekf: Ekf,
-    /// When the exclusion made it, µs.
-    pub since: i64,
 }
 
 /// The main filter and its sub-filters.
@@ -126,12 +125,10 @@ impl Bank {
             if source.is_some_and(|src| s.without == src) {
                 continue;
             }
-            let mk = m.about(main_x, &s.ekf.x);
-            *took = s.ekf.update(&mk, gate, false).accepted;
+            *took = update_about(&mut s.ekf, m, main_x, gate);
         }
         if let Some(s) = self.shadow.as_mut() {
-            let mk = m.about(main_x, &s.ekf.x);
-            s.ekf.update(&mk, gate, false);
+            update_about(&mut s.ekf, m, main_x, gate);
         }
         let out = self.main.update(m, gate, false);
         if !out.accepted {
@@ -146,8 +143,7 @@ impl Bank {
     pub fn update_shadow(&mut self, m: &Measurement, gate: f64, source: &str) {
         let main_x = &self.main.x;
         if let Some(s) = self.shadow.as_mut().filter(|s| s.with == source) {
-            let mk = m.about(main_x, &s.ekf.x);
-            s.ekf.update(&mk, gate, false);
+            update_about(&mut s.ekf, m, main_x, gate);
         }
     }
 
@@ -217,7 +213,6 @@ impl Bank {
         self.shadow = Some(Shadow {
             with: source.to_string(),
             ekf: kept,
-            since: t,
         });
         for s in &mut self.subs {
             s.ekf = self.main.clone();
@@ -226,6 +221,13 @@ impl Bank {
         }
         true
     }
+}
+
+/// `m`, linearised about the main filter's state `main_x`, into another filter of the
+/// bank (see the module's docs). Returns whether it was accepted.
+fn update_about(ekf: &mut Ekf, m: &Measurement, main_x: &DVector<f64>, gate: f64) -> bool {
+    let mk = m.about(main_x, &ekf.x);
+    ekf.update(&mk, gate, false).accepted
 }
 
 #[cfg(test)]
@@ -319,7 +321,7 @@ mod tests {
         let with_gps = b.main().pos();
         assert!(b.exclude("gps", 7));
         let shadow = b.shadow().expect("the set-aside solution");
-        assert_eq!((shadow.with.as_str(), shadow.since), ("gps", 7));
+        assert_eq!(shadow.with, "gps");
         assert_eq!(shadow.ekf.pos(), with_gps);
         assert!(
             (b.main().pos() - with_gps).norm() > 2.0,

@@ -497,7 +497,7 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
     let main = bank.main();
     let p0 = main.cov3(IDX_P);
     let x0 = main.pos();
-    let sigma0 = p0.diagonal().map(|v| v.max(0.0).sqrt());
+    let sigma0 = axis_sigma(&p0);
     let mut pl = sigma0 * cfg.k_ffmd;
     // Kept from one check to the next (the figures are written in place, the names
     // cloned only when the bank changed): this runs 20 times a second.
@@ -509,7 +509,7 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
     for (i, sub) in bank.subs().iter().enumerate() {
         let d = x0 - sub.ekf.pos();
         let pk = sub.ekf.cov3(IDX_P);
-        let sigma_k = pk.diagonal().map(|v| v.max(0.0).sqrt());
+        let sigma_k = axis_sigma(&pk);
         // Var(x0 − xk) = Pk − P0 holds while the sub-filter's information is a part of
         // the main filter's. A sub-filter surer than the main one on an axis has learnt
         // something the main one refused (a GNSS fix that an unaided sub-filter took
@@ -596,7 +596,7 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
     // source right, the estimate is off by the separation from it.
     if let Some(shadow) = bank.shadow() {
         let d = x0 - shadow.ekf.pos();
-        let sigma_s = shadow.ekf.cov3(IDX_P).diagonal().map(|v| v.max(0.0).sqrt());
+        let sigma_s = axis_sigma(&shadow.ekf.cov3(IDX_P));
         for a in 0..3 {
             pl[a] = pl[a].max(d[a].abs() + cfg.k_md * sigma_s[a]);
             unresolved[a] = unresolved[a].max(d[a] * d[a]);
@@ -693,6 +693,11 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
         }
     }
     core.integrity.tests = tests;
+}
+
+/// Per axis, the 1σ of a position covariance, m.
+fn axis_sigma(p: &nalgebra::Matrix3<f64>) -> Vector3<f64> {
+    p.diagonal().map(|v| v.max(0.0).sqrt())
 }
 
 /// How long a source counts as informing a channel after it last did, µs.

@@ -340,18 +340,10 @@ impl Core {
             let out = bank.innovation_test(m, gate);
             // The solution that kept it takes it (see `bank::Shadow`).
             if bank.shadow().is_some_and(|s| s.with == source) {
-                let delayed;
-                let m = if self.imu_drives(t, ctx) && ctx.cfg.delay_std_s > 0.0 {
-                    let Some(bank) = self.ekf.as_mut() else {
-                        return false;
-                    };
-                    delayed = with_delay(bank, source, m, extra, ctx.cfg.delay_std_s);
-                    &delayed
-                } else {
-                    m
-                };
+                let imu_drives = self.imu_drives(t, ctx);
+                let delayed = self.delayed(imu_drives, source, m, extra, ctx);
                 if let Some(bank) = self.ekf.as_mut() {
-                    bank.update_shadow(m, gate, source);
+                    bank.update_shadow(delayed.as_ref().unwrap_or(m), gate, source);
                 }
             }
             let st = self.stat(source);
@@ -372,15 +364,14 @@ impl Core {
         // A delay is seen against the IMU's prediction: without one driving it (the
         // constant-velocity stand-in) there is nothing to see it against.
         let imu_drives = self.imu_drives(t, ctx);
+        let delayed = if aiding {
+            self.delayed(imu_drives, source, m, extra, ctx)
+        } else {
+            None
+        };
+        let m = delayed.as_ref().unwrap_or(m);
         let Some(bank) = self.ekf.as_mut() else {
             return false;
-        };
-        let delayed;
-        let m = if aiding && imu_drives && ctx.cfg.delay_std_s > 0.0 {
-            delayed = with_delay(bank, source, m, extra, ctx.cfg.delay_std_s);
-            &delayed
-        } else {
-            m
         };
         let out = bank.update(m, gate, aiding.then_some(source));
         if aiding && imu_drives {
@@ -419,6 +410,23 @@ impl Core {
             self.reset_if_locked_out(t, source, m, ctx);
         }
         out.accepted
+    }
+
+    /// `m` from an aiding `source` with its delay in it (see [`with_delay`]), where
+    /// delays are estimated and an IMU drives the prediction; None otherwise.
+    fn delayed(
+        &mut self,
+        imu_drives: bool,
+        source: &str,
+        m: &Measurement,
+        extra: [f64; 3],
+        ctx: &Ctx,
+    ) -> Option<Measurement> {
+        if !(imu_drives && ctx.cfg.delay_std_s > 0.0) {
+            return None;
+        }
+        let bank = self.ekf.as_mut()?;
+        Some(with_delay(bank, source, m, extra, ctx.cfg.delay_std_s))
     }
 
     /// The velocity rows of `m` (those that read the velocity states) against what
