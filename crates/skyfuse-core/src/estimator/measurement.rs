@@ -27,8 +27,10 @@ pub struct Measurement {
     n_consider: usize,
 }
 
-/// Most consider states one measurement has.
-pub const MAX_CONSIDER: usize = 6;
+/// Most consider states one measurement has (a flow without an IMU: its scale and
+/// heading errors, the attitude's heading error, the height and terrain, and its
+/// compensation gyro's two bias errors).
+pub const MAX_CONSIDER: usize = 8;
 
 /// One row of H: its non-zero entries, by state index.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

@@ -717,13 +717,16 @@ impl Core {
         }
         let cfg = ctx.cfg;
         let (scale_var, heading_var) = (cfg.flow_scale_std.powi(2), cfg.flow_heading_std.powi(2));
-        // Continue condition of the flow's scale error: something that sees it, an IMU
-        // driving the prediction (metric accelerations beside the flow's velocity
+        // Continue condition of the flow's scale and heading errors and of the
+        // attitude's heading error, as a flow corrects them: something that sees them,
+        // an IMU driving the prediction (metric accelerations beside the flow's velocity
         // changes) or another horizontal source. A flow alone cannot tell a slow sensor
-        // from a slow vehicle, and a filter free to choose drifts (4 m/s laps without an
-        // IMU: −5 % whatever the sensor's error, the fused track worse than the flow
-        // integrated). Otherwise it is a consider state: held, its uncertainty carried
-        // into every flow sample and, through the covariance, into the position.
+        // from a slow vehicle, nor a turned one from a turning one, and a filter free to
+        // choose drifts (4 m/s laps without an IMU: −5 % whatever the sensor's error,
+        // and the lag of every turn taken for a heading, 8° in 300 s; the fused track
+        // worse than the flow integrated). Otherwise they are consider states: held,
+        // their uncertainty carried into every flow sample and, through the covariance,
+        // into the position.
         let imu_drives = self.imu_drives(t, ctx);
         let observed = imu_drives || self.other_aiding(t, source, ctx);
         let Some(bank) = self.ekf.as_mut() else {
@@ -777,6 +780,8 @@ impl Core {
                 }
                 if !observed {
                     m.consider(si);
+                    m.consider(si + 1);
+                    m.consider(ekf::IDX_YAW);
                 }
             }
             None => {

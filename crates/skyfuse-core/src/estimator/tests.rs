@@ -872,6 +872,40 @@ fn flow_range_cfg() -> EstimatorConfig {
     }
 }
 
+/// Issue 44's first flight in kind: laps on flow + range + attitude, no IMU. Nothing
+/// there sees a heading, neither the flow's own (its mounting) nor the attitude's
+/// error: without accelerations to turn it, the predicted velocity lags every turn,
+/// always the same way round, and a filter free to correct the headings took that lag
+/// for one (the flow's wandered 8° in 300 s of the `flow-laps` scenario, the fused
+/// track farther off than the flow integrated). Considered instead, as the scale error
+/// already was: held, their σ carried into the velocity and the position.
+#[test]
+fn laps_on_a_flow_without_an_imu_learn_no_heading() {
+    let mut est = Estimator::new(flow_range_cfg());
+    let turn_rate = 2.0 * std::f64::consts::PI / 40.0;
+    let vel = |t: i64| {
+        let s = t as f64 * 1e-6;
+        let speed = 4.0 * (s / 5.0).min(1.0);
+        Vector2::new((turn_rate * s).cos(), (turn_rate * s).sin()) * speed
+    };
+    flow_range_vehicle(&mut est, 0, 120_000_000, |t| seen(0.0, 2.0, vel(t)), None);
+    let (x, var, names) = est.filter_state().expect("a filter");
+    for name in ["flow.heading", "yaw"] {
+        let i = names.iter().position(|n| n == name).expect(name);
+        let sigma = var[i].sqrt();
+        println!("{name}: {:.4} ± {sigma:.4} rad", x[i]);
+        assert!(
+            x[i].abs() < 1e-6,
+            "{name} learnt without a reference: {}",
+            x[i]
+        );
+        assert!(
+            sigma > 0.04,
+            "{name} σ {sigma}: claimed without a reference"
+        );
+    }
+}
+
 #[test]
 fn a_table_edge_below_moves_the_terrain_not_the_vehicle() {
     // Hovering at 1.5 m; from 10 to 14 s a 1.2 m high table passes below (the range
