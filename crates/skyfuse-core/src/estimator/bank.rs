@@ -95,23 +95,21 @@ impl Bank {
     /// gets it on its own state.
     pub fn each(&mut self, mut f: impl FnMut(&mut Ekf)) {
         f(&mut self.main);
-        for s in &mut self.subs {
-            f(&mut s.ekf);
-        }
-        if let Some(s) = self.shadow.as_mut() {
-            f(&mut s.ekf);
-        }
+        self.others().for_each(f);
     }
 
     /// The same change to every filter, returning the main filter's result.
     pub fn each_main<R>(&mut self, mut f: impl FnMut(&mut Ekf) -> R) -> R {
-        for s in &mut self.subs {
-            f(&mut s.ekf);
-        }
-        if let Some(s) = self.shadow.as_mut() {
-            f(&mut s.ekf);
+        for ekf in self.others() {
+            f(ekf);
         }
         f(&mut self.main)
+    }
+
+    /// Every filter but the main one: the sub-filters and the set-aside solution.
+    fn others(&mut self) -> impl Iterator<Item = &mut Ekf> {
+        let subs = self.subs.iter_mut().map(|s| &mut s.ekf);
+        subs.chain(self.shadow.as_mut().map(|s| &mut s.ekf))
     }
 
     /// A measurement from `source` (None: a constraint every filter takes, such as
