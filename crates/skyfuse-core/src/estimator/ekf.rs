@@ -32,6 +32,10 @@ pub const CORE_STATES: usize = 14;
 /// Smallest variance kept on the diagonal (numerical floor).
 const VAR_FLOOR: f64 = 1e-12;
 
+/// The variance a replaced state takes before the measurement that replaces it, (m/s)²
+/// or m²: far beyond any innovation, so the measurement alone decides.
+const REPLACED_PRIOR_VAR: f64 = 1e6;
+
 /// Result of one measurement update.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct UpdateOutcome {
@@ -538,9 +542,17 @@ impl Ekf {
             let (pht, rest) = scratch.split_at_mut(n * M);
             let (k, kl) = rest.split_at_mut(n * M);
             let (out, chol) = self.test_rows::<M>(m, gate, force, pht);
-            let Some(chol) = chol.filter(|_| out.accepted) else {
+            let Some(mut chol) = chol.filter(|_| out.accepted) else {
                 return out;
             };
+            if !m.replaced().is_empty() {
+                // Gated against the prior; now the replaced states start from nothing.
+                self.forget(m.replaced(), REPLACED_PRIOR_VAR);
+                match self.test_rows::<M>(m, gate, true, pht).1 {
+                    Some(c) => chol = c,
+                    None => return out,
+                }
+            }
             let y = SVector::<f64, M>::from_fn(|i, _| m.innovation()[i]);
             // K = P Hᵀ S⁻¹, row j of it S⁻¹ (H P)[:, j] (S and P symmetric).
             for j in 0..n {
@@ -1342,6 +1354,55 @@ mod tests {
         plain.set_noise(0, 0, r);
         assert!(both.update(&plain, 0.0, true).accepted);
         assert!((both.x[c] - pc / s * 2.0).abs() < 1e-12);
+    }
+
+    /// A replaced state: gated against its prior, then the measurement's value and
+    /// variance (with the considered state's part), correlated with the rest only
+    /// through that considered state; the position it was correlated with keeps its
+    /// value and variance.
+    #[test]
+    fn a_replaced_state_takes_the_measurement_after_its_gate() {
+        let (p, v, c) = (IDX_P, IDX_V, IDX_TERRAIN);
+        let (pc, r) = (0.25, 0.04);
+        let mut ekf = unit_filter();
+        ekf.p[(v, v)] = 1.0;
+        ekf.p[(p, v)] = 0.5;
+        ekf.p[(v, p)] = 0.5;
+        ekf.p[(c, c)] = pc;
+        let before = ekf.clone();
+        let measure = |y: f64| {
+            let mut m = Measurement::new(1);
+            m.set_jacobian(0, v, 1.0);
+            m.set_jacobian(0, c, 1.0);
+            m.set_innovation(0, y);
+            m.set_noise(0, 0, r);
+            m.consider(c);
+            m.replace(v);
+            m
+        };
+        // Gated against the prior (S = 1 + 0.25 + 0.04): 2 m/s off is 3.1 S-σ², refused
+        // at a gate of 3 and the state untouched.
+        let out = ekf.update(&measure(2.0), 3.0, false);
+        assert!(
+            !out.accepted && (out.nis - 4.0 / 1.29).abs() < 1e-9,
+            "{out:?}"
+        );
+        assert_eq!(ekf.x, before.x);
+        assert_eq!(ekf.p, before.p);
+        assert!(ekf.update(&measure(1.0), 3.0, false).accepted);
+        assert!(
+            (ekf.x[v] - 1.0).abs() < 1e-5,
+            "the measured value: {}",
+            ekf.x[v]
+        );
+        assert_eq!(ekf.x[p], before.x[p]);
+        assert_eq!(ekf.x[c], before.x[c]);
+        // v = z − c: its variance r + pc, its covariance with c −pc, none with p.
+        assert!((ekf.p[(v, v)] - (r + pc)).abs() < 1e-5, "{}", ekf.p[(v, v)]);
+        assert!((ekf.p[(v, c)] + pc).abs() < 1e-5, "{}", ekf.p[(v, c)]);
+        assert!(ekf.p[(v, p)].abs() < 1e-5, "{}", ekf.p[(v, p)]);
+        assert!((ekf.p[(p, p)] - before.p[(p, p)]).abs() < 1e-9);
+        assert!(ekf.p.clone().cholesky().is_some());
     }
 
     /// A frame anchored to north: the heading's new doubt is the alignments' too, the

@@ -25,6 +25,10 @@ pub struct Measurement {
     /// states: unobservable here, their uncertainty still counted).
     consider: [usize; MAX_CONSIDER],
     n_consider: usize,
+    /// States whose prior this measurement replaces once it passes its gate (see
+    /// [`Self::replace`]).
+    replace: [usize; MAX_ROWS],
+    n_replace: usize,
 }
 
 /// Most consider states one measurement has (a flow without an IMU: its scale and
@@ -67,7 +71,26 @@ impl Measurement {
             h: [JacobianRow::default(); MAX_ROWS],
             consider: [0; MAX_CONSIDER],
             n_consider: 0,
+            replace: [0; MAX_ROWS],
+            n_replace: 0,
         }
+    }
+
+    /// `state`'s prior is replaced: the measurement is gated against the prior as
+    /// usual, then, accepted, the state forgets what it knew (uncorrelated, a variance
+    /// far beyond any innovation) and takes the measurement as its value. For a state
+    /// the model predicts no better than a stand-in (a velocity with nothing driving
+    /// it): the value is the measurement's, its error the measurement's and nothing
+    /// of the stand-in's lag or pull is smoothed into the others.
+    pub fn replace(&mut self, state: usize) {
+        assert!(self.n_replace < MAX_ROWS, "too many replaced states");
+        self.replace[self.n_replace] = state;
+        self.n_replace += 1;
+    }
+
+    /// The states whose prior is replaced.
+    pub fn replaced(&self) -> &[usize] {
+        &self.replace[..self.n_replace]
     }
 
     /// `state` is considered, not corrected (its Jacobian entries stay: they carry its

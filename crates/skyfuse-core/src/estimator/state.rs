@@ -805,6 +805,16 @@ impl Core {
                 m.consider(ekf::IDX_TERRAIN);
             }
         }
+        // Nor is there anything to hold the flow's velocity against: the stand-in (the
+        // last velocity, decaying) cannot turn or keep a cruise, and weighed against
+        // it every lap's lasting innovations were smoothed into the position (20 m off
+        // the flow integrated in 120 s of 4 m/s laps). The flow's velocity is then the
+        // velocity: gated against the prediction, it replaces the horizontal velocity,
+        // which the position integrates with its noise and its considered errors.
+        if rows == 2 && !observed {
+            m.replace(IDX_V);
+            m.replace(IDX_V + 1);
+        }
         // The compensation's gyro bias error δb reads as (δb_y, −δb_x)·d: considered.
         if let Some((i, d)) = gyro_bias {
             m.set_jacobian(0, i + 1, d);
