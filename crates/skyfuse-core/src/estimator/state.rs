@@ -1051,7 +1051,14 @@ impl Core {
             .map_or(Vector3::zeros(), |e| e.accel_bias());
         let a_world = rot * (f_body - ba) - Vector3::new(0.0, 0.0, GRAVITY);
         self.monitors.predict(a_world, dt, imu_drives);
-        let velocity_tau_s = if imu_drives {
+        // The stand-in's velocity reverts to rest only where nothing measures it: a
+        // flow sample replaces it (see `fuse_body_velocity`), and decaying between two
+        // of them read a 9.5 Hz flow 0.5 % slower than it is, on top of its own error.
+        let measured = self
+            .ground
+            .last_h_aiding
+            .is_some_and(|l| t - l <= NO_IMU_VELOCITY_HELD_US);
+        let velocity_tau_s = if imu_drives || measured {
             f64::INFINITY
         } else {
             NO_IMU_VELOCITY_TAU_S
@@ -1379,6 +1386,11 @@ fn with_delay(
 /// stand-in's acceleration noise (`no_imu_accel_noise`, 3 m/s²) its speed's 1σ at rest is
 /// about 3 m/s.
 const NO_IMU_VELOCITY_TAU_S: f64 = 10.0;
+
+/// Without an IMU, how long after a horizontal velocity or position was last fused the
+/// velocity is held as it is, µs (then it decays with [`NO_IMU_VELOCITY_TAU_S`]): a
+/// few samples of the slowest flow.
+const NO_IMU_VELOCITY_HELD_US: i64 = 500_000;
 
 /// A delay state is held within this many of its prior 1σ (`delay_std_s`): 0.4 s at
 /// the default, beyond the 0–300 ms the randomised flights draw.

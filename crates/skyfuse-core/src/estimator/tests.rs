@@ -933,8 +933,10 @@ fn laps_on_a_flow_without_an_imu_follow_the_flow_integrated() {
             truth += vel(t) * (step as f64 * 1e-6);
             t += step;
         }
-        if let Some(p) = est.pose() {
-            worst = worst.max((p.position.xy() - truth).norm());
+        match est.pose() {
+            Some(p) => worst = worst.max((p.position.xy() - truth).norm()),
+            // Not started yet: the track starts where the filter does.
+            None => truth = Vector2::zeros(),
         }
     }
     let p = est.pose().expect("pose");
@@ -943,7 +945,7 @@ fn laps_on_a_flow_without_an_imu_follow_the_flow_integrated() {
         p.position.xy()
     );
     assert!(
-        worst < 1.0,
+        worst < 0.2,
         "fused trails the flow integrated by {worst:.2} m"
     );
 }
