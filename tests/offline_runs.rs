@@ -592,18 +592,22 @@ fn without_horizontal_aiding_in_flight_the_estimate_is_bounded_invalid_and_recov
         .find(|(t, _)| *t >= 50.0)
         .map(|p| p.0)
         .expect("valid again");
+    // A step of the estimate beyond the vehicle's own motion between the two poses.
     let jump = all
         .windows(2)
         .filter(|w| w[0].0 > 49.0 && w[1].0 < 52.0)
-        .map(|w| (nalgebra::Vector3::from(w[1].1) - nalgebra::Vector3::from(w[0].1)).norm())
+        .map(|w| {
+            let step = nalgebra::Vector3::from(w[1].1) - nalgebra::Vector3::from(w[0].1);
+            (step - (truth(w[1].0) - truth(w[0].0))).norm()
+        })
         .fold(0.0, f64::max);
     println!("unaided 40-50 s: worst error {worst:.2} m; valid again at {back:.2} s; largest step {jump:.3} m");
     assert!(worst < 1.5, "{worst}");
     assert!(back < 51.0, "{back}");
-    // 50 Hz poses of a vehicle at ≤ 3 m/s: no step beyond 0.1 m, or beyond the error
-    // the returning flow corrects (a flow whose noise is learnt takes most of it in
-    // one update), i.e. no reset jump.
-    assert!(jump < 0.1f64.max(worst), "{jump} (worst error {worst})");
+    // No step beyond the vehicle's own motion larger than the error the returning flow
+    // corrects (a flow whose noise is learnt takes most of it in one update) and 0.1 m,
+    // i.e. no reset jump.
+    assert!(jump < 0.1 + worst, "{jump} (worst error {worst})");
 }
 
 #[test]
@@ -859,9 +863,11 @@ fn a_simulated_dataflash_log_replays_against_its_truth_and_keeps_the_promise() {
     assert_eq!(c["beyond_5_sigma"].as_u64(), Some(0), "{c}");
     // Valid while the protection level is under the alert limit (50 m): dead reckoning
     // on a flow whose scale and whose compass heading nothing calibrates (5 % and
-    // 8.6° 1σ by default) outgrows it after about a minute of 4 m/s laps, and says so.
+    // 8.6° 1σ by default, the compass error's memory 100 s) outgrows it after about 40
+    // s of 4 m/s laps, and says so (a minute while that memory was 300 s, which a
+    // compass swinging 15° in two minutes broke: randomised draw 393, beyond 5σ).
     assert!(
-        s["availability"]["valid_fraction"].as_f64().expect("valid") > 0.35,
+        s["availability"]["valid_fraction"].as_f64().expect("valid") > 0.25,
         "{s}"
     );
     // The same log cut in a record: replayed, and said to be cut short.

@@ -19,11 +19,13 @@
 //!   aside, not dropped, and goes on with the excluded source; until it is fused again
 //!   the protection level and the covariance sent cover the case that it was right.
 //!   An excluded liar then shows what it claims in the bound, as a refused one does.
-//! - **Protection levels**, per axis `PL = max(K_ffmd·σ₀, max_k (T_k + K_md·σ_k))` over
-//!   the monitored sub-filters; horizontal `HPL = √(PL_E² + PL_N²)`, vertical the up
-//!   axis's. The pose is valid only with `HPL ≤ horizontal_alert_m` and
-//!   `VPL ≤ vertical_alert_m`. An integrity failure is a valid pose whose true error
-//!   exceeds its protection level.
+//! - **Protection levels**, per axis `PL = max_k (T_k + K_md·σ_k)` over the monitored
+//!   sub-filters; horizontal `HPL = max(K_H·d_major, √(PL_E² + PL_N²))`, where the
+//!   fault-free term is the SBAS one (RTCA DO-229): `d_major` the error ellipse's
+//!   semi-major axis and `K_H` the radius a 2-D Gaussian exceeds as rarely as one axis
+//!   exceeds `K_ffmd·σ` ([`horizontal_k`]); vertical `max(K_ffmd·σ_U, PL_U)`. The pose
+//!   is valid only with `HPL ≤ horizontal_alert_m` and `VPL ≤ vertical_alert_m`. An
+//!   integrity failure is a valid pose whose true error exceeds its protection level.
 //! - **A refusal is an exclusion too.** While the innovation gate refuses every
 //!   measurement of a channel (nothing accepted there since), the estimate and the
 //!   refused measurements disagree and nothing has said which is wrong: the protection
@@ -49,7 +51,7 @@ use super::measurement::Measurement;
 use super::status::Protection;
 use super::{Core, Ctx, Event};
 use crate::source_map::SourceMap;
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Detection threshold of a separation, in its own σ (ARAIM's K_fa): 5σ, a false
@@ -57,7 +59,8 @@ use serde::{Deserialize, Serialize};
 pub const DEFAULT_K_FA: f64 = 5.0;
 /// Missed-detection multiplier of a sub-filter's own σ in the protection level.
 pub const DEFAULT_K_MD: f64 = 3.5;
-/// Fault-free multiplier of the main filter's σ in the protection level.
+/// Fault-free multiplier of the main filter's σ in the protection level: vertically;
+/// horizontally through [`horizontal_k`], on the error ellipse's major axis.
 pub const DEFAULT_K_FFMD: f64 = 5.5;
 /// Alert limits: the largest protection level a valid pose may carry, m. An autopilot
 /// weighs our pose by the σ it comes with, so a pose whose bound is metres still
@@ -498,7 +501,8 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
     let p0 = main.cov3(IDX_P);
     let x0 = main.pos();
     let sigma0 = axis_sigma(&p0);
-    let mut pl = sigma0 * cfg.k_ffmd;
+    // The fault-free horizontal term is the ellipse's (below); per axis, the faults'.
+    let mut pl = Vector3::new(0.0, 0.0, sigma0.z * cfg.k_ffmd);
     // Kept from one check to the next (the figures are written in place, the names
     // cloned only when the bank changed): this runs 20 times a second.
     let mut tests = std::mem::take(&mut core.integrity.tests);
@@ -608,9 +612,12 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
         let f = misfit[usize::from(a == 2)];
         if f > 1.0 {
             unresolved[a] = unresolved[a].max((f - 1.0) * p0[(a, a)].max(0.0));
-            pl[a] = pl[a].max(sigma0[a] * f.sqrt() * cfg.k_ffmd);
+            if a == 2 {
+                pl[a] = pl[a].max(sigma0[a] * f.sqrt() * cfg.k_ffmd);
+            }
         }
     }
+    let fault_free_h = fault_free_hpl(&p0, cfg.k_ffmd) * misfit[0].max(1.0).sqrt();
     // The refused measurements' case (see the module's docs).
     let refused = core.integrity.refused_extent(t);
     for a in 0..3 {
@@ -643,11 +650,12 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
         }
     }
     // Its unreported error (see `DEFAULT_GNSS_FAULT_HORIZONTAL_M`) on the channels it
-    // holds.
-    if lone[0] {
-        pl.x += cfg.gnss_fault_horizontal_m / std::f64::consts::SQRT_2;
-        pl.y += cfg.gnss_fault_horizontal_m / std::f64::consts::SQRT_2;
-    }
+    // holds, on top of the rest.
+    let unchecked_h = if lone[0] {
+        cfg.gnss_fault_horizontal_m
+    } else {
+        0.0
+    };
     if lone[1] {
         pl.z += cfg.gnss_fault_vertical_m;
     }
@@ -658,7 +666,7 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
             }
         }
     }
-    core.integrity.hpl = pl.x.hypot(pl.y);
+    core.integrity.hpl = fault_free_h.max(pl.x.hypot(pl.y)) + unchecked_h;
     core.integrity.vpl = pl.z;
     core.integrity.unresolved_var = unresolved;
     // Not while carried by hand: nothing is sent then (the pose is invalid until set
@@ -766,18 +774,43 @@ fn exclude(core: &mut Core, t: i64, test: &SeparationTest, ratio: f64) {
     );
 }
 
+/// The radius a horizontal error of unit covariance (a circular 2-D Gaussian) exceeds
+/// as rarely as one axis exceeds `k` (its tail `2·Q(k)`): `√(−2·ln(2·Q(k)))`, 5.85 for
+/// k = 5.5 (SBAS flies precision approaches on 6.0). `Q` by its asymptotic series,
+/// low by 0.1 % at k = 4 and 0.01 % at 5.5 (so the radius is, if anything, wider); a
+/// smaller `k` is taken as 4 (a wider bound).
+pub fn horizontal_k(k: f64) -> f64 {
+    let k = k.max(4.0);
+    let density = (-0.5 * k * k).exp() / (2.0 * std::f64::consts::PI).sqrt();
+    let k2 = k * k;
+    let tail = density / k * (1.0 - 1.0 / k2 + 3.0 / (k2 * k2) - 15.0 / (k2 * k2 * k2));
+    (-2.0 * (2.0 * tail).ln()).sqrt()
+}
+
+/// The fault-free horizontal protection level of position covariance `p`: `K_H` times
+/// the semi-major axis of its horizontal error ellipse (DO-229's `d_major`). The root
+/// sum of two per-axis `K_ffmd·σ` bounds a circular error at 7.8σ, a third wider than
+/// the same risk needs, and that third was availability on flights whose only
+/// horizontal source is a flow (their σ grows with the distance flown).
+pub fn fault_free_hpl(p: &Matrix3<f64>, k_ffmd: f64) -> f64 {
+    let (e, n, en) = (p[(0, 0)].max(0.0), p[(1, 1)].max(0.0), p[(0, 1)]);
+    let half_diff = 0.5 * (e - n);
+    let major = 0.5 * (e + n) + (half_diff * half_diff + en * en).sqrt();
+    horizontal_k(k_ffmd) * major.max(0.0).sqrt()
+}
+
 /// The protection levels of the estimate now, and the alert limits: the bank's when it
-/// runs, else the main filter's `K_ffmd·σ` alone.
+/// runs, else the main filter's fault-free bound alone.
 pub(super) fn protection(core: &Core, cfg: &IntegrityConfig) -> Protection {
     let (hpl, vpl) = if cfg.enabled && core.ekf.is_some() && core.integrity.last_check.is_some() {
         (core.integrity.hpl, core.integrity.vpl)
     } else {
-        let var = match core.ekf.as_ref() {
-            Some(e) => e.cov3(IDX_P).diagonal(),
-            None => core.wrls.var,
+        let p = match core.ekf.as_ref() {
+            Some(e) => e.cov3(IDX_P),
+            None => Matrix3::from_diagonal(&core.wrls.var),
         };
-        let s = var.map(|v| v.max(0.0).sqrt()) * cfg.k_ffmd;
-        (s.x.hypot(s.y), s.z)
+        let s = p.diagonal().map(|v| v.max(0.0).sqrt()) * cfg.k_ffmd;
+        (fault_free_hpl(&p, cfg.k_ffmd), s.z)
     };
     Protection {
         horizontal_m: hpl,
@@ -790,6 +823,49 @@ pub(super) fn protection(core: &Core, cfg: &IntegrityConfig) -> Protection {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// K_H from the one-axis multiplier: exp(−K_H²/2) is the 2-D tail, 2·Q(k) the
+    /// one-axis one (Q(4) = 3.167e-5, Q(5.5) = 1.899e-8).
+    #[test]
+    fn the_horizontal_multiplier_has_the_one_axis_risk() {
+        let tail = |k: f64| (-0.5 * horizontal_k(k).powi(2)).exp();
+        assert!(
+            (tail(4.0) / (2.0 * 3.167e-5) - 1.0).abs() < 2e-3,
+            "{}",
+            tail(4.0)
+        );
+        assert!(
+            (tail(5.5) / (2.0 * 1.899e-8) - 1.0).abs() < 3e-4,
+            "{}",
+            tail(5.5)
+        );
+        assert!((horizontal_k(5.5) - 5.846).abs() < 1e-3);
+    }
+
+    /// The fault-free bound is K_H times the ellipse's semi-major axis: a circular σ of
+    /// 1 m is bounded at 5.85 m, not the 7.78 m of two per-axis 5.5σ; an ellipse
+    /// turned off the axes is bounded by its major axis, not by its E and N spreads.
+    #[test]
+    fn the_fault_free_bound_is_the_error_ellipse_s() {
+        let k = horizontal_k(5.5);
+        let circle = Matrix3::identity();
+        assert!((fault_free_hpl(&circle, 5.5) - k).abs() < 1e-12);
+        assert!(fault_free_hpl(&circle, 5.5) < (5.5f64).hypot(5.5));
+        // σ 2 m along the north-east diagonal, 0.1 m across: E and N 1.415 m each.
+        let (a, b) = (4.0, 0.01);
+        let turned = Matrix3::new(
+            0.5 * (a + b),
+            0.5 * (a - b),
+            0.0,
+            0.5 * (a - b),
+            0.5 * (a + b),
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+        );
+        assert!((fault_free_hpl(&turned, 5.5) - 2.0 * k).abs() < 1e-9);
+    }
 
     #[test]
     fn a_measurement_says_which_channels_it_informs() {
