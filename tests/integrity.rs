@@ -337,11 +337,12 @@ fn a_flow_carries_the_gyro_bias_not_yet_learnt() {
 /// on 744, and as a refused position it stood until a position passed, which on a
 /// flight without one is never (15.5 and 22.7 % valid airborne, the error under 2 m).
 /// A refused velocity is answered by a velocity that passes: 89.8 and 93.6 %, inside
-/// the bound.
+/// the bound; 75.1 and 74.8 % since the compass heading error's memory is 100 s (stop
+/// 69: its σ, wider sooner, grows the bound of a flight nothing else aligns).
 #[test]
 fn a_refused_velocity_is_answered_by_an_accepted_one() {
     for i in [744, 808] {
-        assert_available_and_consistent(i, 0.85);
+        assert_available_and_consistent(i, 0.7);
     }
 }
 
