@@ -547,10 +547,17 @@ impl Ekf {
             };
             if !m.replaced().is_empty() {
                 // Gated against the prior; now the replaced states start from nothing.
+                // (S stays positive definite: P does, and the replaced rows' 1e6 only
+                // adds to it; a non-finite P is the one way out, said as refused.)
                 self.forget(m.replaced(), REPLACED_PRIOR_VAR);
                 match self.test_rows::<M>(m, gate, true, pht).1 {
                     Some(c) => chol = c,
-                    None => return out,
+                    None => {
+                        return UpdateOutcome {
+                            accepted: false,
+                            ..out
+                        }
+                    }
                 }
             }
             let y = SVector::<f64, M>::from_fn(|i, _| m.innovation()[i]);
