@@ -501,8 +501,12 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
     let p0 = main.cov3(IDX_P);
     let x0 = main.pos();
     let sigma0 = axis_sigma(&p0);
-    // The fault-free horizontal term is the ellipse's (below); per axis, the faults'.
-    let mut pl = Vector3::new(0.0, 0.0, sigma0.z * cfg.k_ffmd);
+    // The fault-free bounds, widened by what the accepted measurements say of the
+    // filter's own σ: horizontally the error ellipse's, vertically the up axis's.
+    let misfit = core.integrity.misfit_factor();
+    let fault_free_h = fault_free_hpl(&p0, cfg.k_ffmd) * misfit[0].sqrt();
+    // Per axis, the faults' (below) beside the fault-free vertical one.
+    let mut pl = Vector3::new(0.0, 0.0, sigma0.z * misfit[1].sqrt() * cfg.k_ffmd);
     // Kept from one check to the next (the figures are written in place, the names
     // cloned only when the bank changed): this runs 20 times a second.
     let mut tests = std::mem::take(&mut core.integrity.tests);
@@ -606,18 +610,13 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
             unresolved[a] = unresolved[a].max(d[a] * d[a]);
         }
     }
-    // What the accepted measurements say of the filter's own σ.
-    let misfit = core.integrity.misfit_factor();
+    // What the accepted measurements say of the filter's own σ, in the σ sent.
     for a in 0..3 {
         let f = misfit[usize::from(a == 2)];
         if f > 1.0 {
             unresolved[a] = unresolved[a].max((f - 1.0) * p0[(a, a)].max(0.0));
-            if a == 2 {
-                pl[a] = pl[a].max(sigma0[a] * f.sqrt() * cfg.k_ffmd);
-            }
         }
     }
-    let fault_free_h = fault_free_hpl(&p0, cfg.k_ffmd) * misfit[0].max(1.0).sqrt();
     // The refused measurements' case (see the module's docs).
     let refused = core.integrity.refused_extent(t);
     for a in 0..3 {
@@ -809,8 +808,10 @@ pub(super) fn protection(core: &Core, cfg: &IntegrityConfig) -> Protection {
             Some(e) => e.cov3(IDX_P),
             None => Matrix3::from_diagonal(&core.wrls.var),
         };
-        let s = p.diagonal().map(|v| v.max(0.0).sqrt()) * cfg.k_ffmd;
-        (fault_free_hpl(&p, cfg.k_ffmd), s.z)
+        (
+            fault_free_hpl(&p, cfg.k_ffmd),
+            axis_sigma(&p).z * cfg.k_ffmd,
+        )
     };
     Protection {
         horizontal_m: hpl,

@@ -23,18 +23,43 @@ pub struct Measurement {
     h: [JacobianRow; MAX_ROWS],
     /// States this measurement depends on but must not correct (Schmidt's "consider"
     /// states: unobservable here, their uncertainty still counted).
-    consider: [usize; MAX_CONSIDER],
-    n_consider: usize,
+    consider: StateList<MAX_CONSIDER>,
     /// States whose prior this measurement replaces once it passes its gate (see
     /// [`Self::replace`]).
-    replace: [usize; MAX_ROWS],
-    n_replace: usize,
+    replace: StateList<MAX_ROWS>,
 }
 
 /// Most consider states one measurement has (a flow without an IMU: its scale and
 /// heading errors, the attitude's heading error, the height and terrain, and its
 /// compensation gyro's two bias errors).
 pub const MAX_CONSIDER: usize = 8;
+
+/// A few state indices in a fixed array (a measurement is built per sample and
+/// allocates nothing).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct StateList<const N: usize> {
+    states: [usize; N],
+    len: usize,
+}
+
+impl<const N: usize> StateList<N> {
+    const EMPTY: Self = Self {
+        states: [0; N],
+        len: 0,
+    };
+
+    /// # Panics
+    /// Beyond `N` states: no measurement the estimator makes has them.
+    fn push(&mut self, state: usize, what: &str) {
+        assert!(self.len < N, "too many {what} states");
+        self.states[self.len] = state;
+        self.len += 1;
+    }
+
+    fn as_slice(&self) -> &[usize] {
+        &self.states[..self.len]
+    }
+}
 
 /// One row of H: its non-zero entries, by state index.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -69,10 +94,8 @@ impl Measurement {
             y: [0.0; MAX_ROWS],
             r: Matrix3::zeros(),
             h: [JacobianRow::default(); MAX_ROWS],
-            consider: [0; MAX_CONSIDER],
-            n_consider: 0,
-            replace: [0; MAX_ROWS],
-            n_replace: 0,
+            consider: StateList::EMPTY,
+            replace: StateList::EMPTY,
         }
     }
 
@@ -83,27 +106,23 @@ impl Measurement {
     /// it): the value is the measurement's, its error the measurement's and nothing
     /// of the stand-in's lag or pull is smoothed into the others.
     pub fn replace(&mut self, state: usize) {
-        assert!(self.n_replace < MAX_ROWS, "too many replaced states");
-        self.replace[self.n_replace] = state;
-        self.n_replace += 1;
+        self.replace.push(state, "replaced");
     }
 
     /// The states whose prior is replaced.
     pub fn replaced(&self) -> &[usize] {
-        &self.replace[..self.n_replace]
+        self.replace.as_slice()
     }
 
     /// `state` is considered, not corrected (its Jacobian entries stay: they carry its
     /// uncertainty into the innovation's).
     pub fn consider(&mut self, state: usize) {
-        assert!(self.n_consider < MAX_CONSIDER, "too many consider states");
-        self.consider[self.n_consider] = state;
-        self.n_consider += 1;
+        self.consider.push(state, "consider");
     }
 
     /// The states considered, not corrected.
     pub fn considered(&self) -> &[usize] {
-        &self.consider[..self.n_consider]
+        self.consider.as_slice()
     }
 
     /// Direct measurements of the states `first..first + rows` (position, velocity):

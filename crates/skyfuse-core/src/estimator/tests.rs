@@ -872,6 +872,14 @@ fn flow_range_cfg() -> EstimatorConfig {
     }
 }
 
+/// 4 m/s laps of 40 s (the speed reached in 5 s), m/s, at `t` µs.
+fn laps_velocity(t: i64) -> Vector2<f64> {
+    let turn_rate = 2.0 * std::f64::consts::PI / 40.0;
+    let s = t as f64 * 1e-6;
+    let speed = 4.0 * (s / 5.0).min(1.0);
+    Vector2::new((turn_rate * s).cos(), (turn_rate * s).sin()) * speed
+}
+
 /// Issue 44's first flight in kind: laps on flow + range + attitude, no IMU. Nothing
 /// there sees a heading, neither the flow's own (its mounting) nor the attitude's
 /// error: without accelerations to turn it, the predicted velocity lags every turn,
@@ -882,13 +890,13 @@ fn flow_range_cfg() -> EstimatorConfig {
 #[test]
 fn laps_on_a_flow_without_an_imu_learn_no_heading() {
     let mut est = Estimator::new(flow_range_cfg());
-    let turn_rate = 2.0 * std::f64::consts::PI / 40.0;
-    let vel = |t: i64| {
-        let s = t as f64 * 1e-6;
-        let speed = 4.0 * (s / 5.0).min(1.0);
-        Vector2::new((turn_rate * s).cos(), (turn_rate * s).sin()) * speed
-    };
-    flow_range_vehicle(&mut est, 0, 120_000_000, |t| seen(0.0, 2.0, vel(t)), None);
+    flow_range_vehicle(
+        &mut est,
+        0,
+        120_000_000,
+        |t| seen(0.0, 2.0, laps_velocity(t)),
+        None,
+    );
     let (x, var, names) = est.filter_state().expect("a filter");
     for name in ["flow.heading", "yaw"] {
         let i = names.iter().position(|n| n == name).expect(name);
@@ -914,23 +922,23 @@ fn laps_on_a_flow_without_an_imu_follow_the_flow_integrated() {
     // lagged, and those lasting innovations moved the position through its
     // covariance with the velocity and the flow's consider states.
     let mut est = Estimator::new(flow_range_cfg());
-    let turn_rate = 2.0 * std::f64::consts::PI / 40.0;
-    let vel = |t: i64| {
-        let s = t as f64 * 1e-6;
-        let speed = 4.0 * (s / 5.0).min(1.0);
-        Vector2::new((turn_rate * s).cos(), (turn_rate * s).sin()) * speed
-    };
     let (mut truth, mut worst) = (Vector2::zeros(), 0.0f64);
     let step = 20_000;
     for second in 0..120i64 {
         let from = second * 1_000_000;
         let to = from + 1_000_000 - step;
-        flow_range_vehicle(&mut est, from, to, |t| seen(0.0, 2.0, vel(t)), None);
+        flow_range_vehicle(
+            &mut est,
+            from,
+            to,
+            |t| seen(0.0, 2.0, laps_velocity(t)),
+            None,
+        );
         let mut t = from;
         while t <= to {
             // The position at the sample after this one: the filter moves between
             // samples with the velocity it last took.
-            truth += vel(t) * (step as f64 * 1e-6);
+            truth += laps_velocity(t) * (step as f64 * 1e-6);
             t += step;
         }
         match est.pose() {
