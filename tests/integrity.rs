@@ -256,16 +256,22 @@ fn a_slow_flow_keeps_the_floor_per_second_not_per_sample() {
 /// for the whole 475 s) and draw 286 (a figure 8, 4-6 m off north for 500 s). The
 /// filter took the error to average out over its correlation time and sent σ 1.3 m
 /// with the error 6 m: 0.8 % and 0 % of the valid poses within 3σ on that axis. The σ
-/// sent does not go below the slow error's own spread while one receiver holds the
-/// channel; the availability is kept.
+/// sent does not go below the slow error's own spread, overbounded, while one receiver
+/// holds the channel, and after it went quiet: on laps (draw 206) the estimate kept
+/// the receiver's 5.4 m north through a 5 s outage, sent with σ 1.7 m once the fixes
+/// stopped (81 % within 3σ north). The availability is kept.
 #[test]
 fn a_receivers_slow_error_is_not_averaged_out_by_a_correlation_time_nobody_knows() {
-    for (i, axis, at_least) in [(326, 2, 0.8), (286, 1, 0.7)] {
+    for (i, axis, at_least, min_valid) in [
+        (326, 2, 0.9, 0.9),
+        (286, 1, 0.99, 0.9),
+        (206, 1, 0.99, 0.85),
+    ] {
         let r = run_draw(SEED, i, EstimatorConfig::default(), HealthConfig::default());
         let valid = r.availability.airborne_valid_fraction.unwrap_or(0.0);
         let c = without_failures(i, r);
         assert!(
-            valid >= 0.9,
+            valid >= min_valid,
             "draw {i}: {:.1} % valid airborne",
             100.0 * valid
         );

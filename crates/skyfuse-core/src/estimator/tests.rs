@@ -264,30 +264,39 @@ fn sim_without_gnss_every_mode_beats_the_t265() {
 
 #[test]
 fn sim_ekf_nees_is_consistent() {
-    let (s, ev) = run(Mode::Ekf, 3, 300.0, 5.0);
-    println!(
-        "ekf 300 s: position NEES mean {:.3} (expected 3), per axis {:?}, rmse {:.4} m, invalid {}",
-        s.nees(),
-        s.nees_axis(),
-        s.rmse(),
-        s.invalid
-    );
+    // Neither over- nor under-confident on any axis (1 expected), over four flights:
+    // the GNSS's slowly wandering error is a few independent draws per axis in a 300 s
+    // run, so one run's mean e²/σ² is as those draws fell, and the σ sent overbounds that
+    // error 1.3× where one receiver holds the position (`GNSS_SLOW_OVERBOUND`: 1/1.69 of
+    // a calibrated error's NEES). The height above the GNSS origin is nearly one draw
+    // per run (below 9 in 99.7 % of runs).
+    let mut sum = [0.0; 3];
+    let seeds = [3, 4, 5, 6];
+    for seed in seeds {
+        let (s, ev) = run(Mode::Ekf, seed, 300.0, 5.0);
+        println!(
+            "seed {seed}, ekf 300 s: position NEES mean {:.3} (expected 3), per axis {:?}, rmse {:.4} m, invalid {}",
+            s.nees(),
+            s.nees_axis(),
+            s.rmse(),
+            s.invalid
+        );
+        assert!(
+            ev.iter().all(|e| e.kind() != "monitor_reset"),
+            "unexpected reset: {:?}",
+            ev.iter().find(|e| e.kind() == "monitor_reset")
+        );
+        assert_eq!(s.invalid, 0);
+        let n = s.nees_axis();
+        assert!((0.05..9.0).contains(&n[2]), "seed {seed}: {n:?}");
+        for (a, v) in n.iter().enumerate() {
+            sum[a] += v / seeds.len() as f64;
+        }
+    }
     assert!(
-        ev.iter().all(|e| e.kind() != "monitor_reset"),
-        "unexpected reset: {:?}",
-        ev.iter().find(|e| e.kind() == "monitor_reset")
+        (0.3..3.0).contains(&sum[0]) && (0.3..3.0).contains(&sum[1]),
+        "mean over the seeds {sum:?}"
     );
-    // Neither over- nor under-confident on any axis (1 expected). The height above the
-    // GNSS origin is one slowly wandering GNSS error over a 300 s run, nearly a single
-    // draw: its mean e²/σ² is that draw's square (below 9 in 99.7 % of runs); the
-    // horizontal axes have several independent minutes of the wander each.
-    let n = s.nees_axis();
-    assert!(
-        (0.3..3.0).contains(&n[0]) && (0.3..3.0).contains(&n[1]),
-        "{n:?}"
-    );
-    assert!((0.05..9.0).contains(&n[2]), "{n:?}");
-    assert_eq!(s.invalid, 0);
 }
 
 /// EKF2's IMU down-sampling at 1 kHz: the filter predicts with 5 ms means, the output
