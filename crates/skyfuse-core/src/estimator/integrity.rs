@@ -652,6 +652,7 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
     // error on top (below), and holds the truth on every randomised flight; taken to
     // the floor too, the vertical one of receivers reporting 3-5 m passed the 20 m
     // alert limit and flights valid 95 % fell to 0-10 %.
+    // Anchored: no second receiver now, and one ever (a window of `i64::MAX`).
     let anchored = [true, false].map(|horizontal| {
         gnss_receivers(core, t, horizontal, window, None) <= 1
             && gnss_receivers(core, t, horizontal, i64::MAX, None) >= 1
