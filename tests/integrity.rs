@@ -283,16 +283,6 @@ fn a_receivers_slow_error_is_not_averaged_out_by_a_correlation_time_nobody_knows
     }
 }
 
-/// A flow reading 14-15 % slow, within the ±15 % of the sensors it stands for: with
-/// its scale's prior at 5 % the laps' first legs ran 3.4-3.7σ off east (draw 42: 93.7 %
-/// of the valid poses within 3σ east; draw 884: 98.6 %).
-#[test]
-fn a_flow_as_slow_as_its_kind_reads_is_within_its_sigma() {
-    for i in [42, 884] {
-        assert_consistent(i);
-    }
-}
-
 /// An exclusion is a decision the test could not make: on laps with a GNSS, a camera
 /// and a flow (draw 488), the autopilot's attitude stopped for 6 s and the solution
 /// without the receiver, its heading 5° off with σ 1°, departed from the one with it

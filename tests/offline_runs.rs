@@ -278,7 +278,7 @@ fn on_every_scenario_the_fused_track_is_consistent_and_beats_the_best_single_sou
         // Beside a GNSS whose error wanders slowly (0.77 m horizontal σ, τ 120 s, as a
         // real receiver's) the filter cannot tell a near-driftless simulated camera or
         // a perfectly scaled flow from one that drifts as much as its defaults allow
-        // (vo_drift_rw 0.02 m/√s, flow_scale_std 8.7 %): it weighs the GNSS in and ends
+        // (vo_drift_rw 0.02 m/√s, flow_scale_std 5 %): it weighs the GNSS in and ends
         // a few decimetres off where such a source alone is centimetres off. Under
         // half a metre there is that price, paid for flights nobody tuned on; above
         // it the fused track must beat every single source.

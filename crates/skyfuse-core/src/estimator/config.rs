@@ -240,11 +240,9 @@ pub const DEFAULT_RANGE_QUALITY_HOLD_MS: f64 = 1000.0;
 /// calls good read slow.
 pub const DEFAULT_FLOW_QUALITY_HOLD_MS: f64 = 1000.0;
 /// A flow sensor's scale error 1σ before anything calibrated it (lens focal length,
-/// height error), as a fraction: the spread of scales uniform within ±15 % (0.3/√12),
-/// as the mounting's heading prior is that of ±5°. At 0.05, flights whose flow read
-/// 13-15 % slow ran 3.4-3.7σ off in their first laps (randomised draws 42, 678, 884).
-/// 0 leaves the scale out of the filter (trusted exactly).
-pub const DEFAULT_FLOW_SCALE_STD: f64 = 0.087;
+/// height error), as a fraction: 0.05 reads up to about 5 % fast or slow. 0 leaves
+/// the scale out of the filter (trusted exactly).
+pub const DEFAULT_FLOW_SCALE_STD: f64 = 0.05;
 /// Random walk of a flow sensor's scale error, 1/√s (texture and height change it).
 pub const DEFAULT_FLOW_SCALE_RW: f64 = 0.0005;
 /// The heading error 1σ of a flow sensor's velocity as turned into the world, rad: the
