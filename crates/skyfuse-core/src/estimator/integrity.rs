@@ -636,8 +636,9 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
         }
     }
     // A GNSS that no second receiver checks, per channel (horizontal, vertical).
-    let lone =
-        [true, false].map(|horizontal| gnss_receivers(core, t, horizontal, window, None) == 1);
+    let receivers =
+        [true, false].map(|horizontal| gnss_receivers(core, t, horizontal, window, None));
+    let lone = receivers.map(|n| n == 1);
     // Its slow error is learnt only through its correlation time, which nobody knows:
     // receivers wander over half a minute to many minutes. The filter's σ falls below
     // the slow error's own spread only by taking it to average out over
@@ -653,10 +654,8 @@ pub(super) fn check(core: &mut Core, ctx: &Ctx, t: i64) {
     // the floor too, the vertical one of receivers reporting 3-5 m passed the 20 m
     // alert limit and flights valid 95 % fell to 0-10 %.
     // Anchored: no second receiver now, and one ever (a window of `i64::MAX`).
-    let anchored = [true, false].map(|horizontal| {
-        gnss_receivers(core, t, horizontal, window, None) <= 1
-            && gnss_receivers(core, t, horizontal, i64::MAX, None) >= 1
-    });
+    let ever = [true, false].map(|horizontal| gnss_receivers(core, t, horizontal, i64::MAX, None));
+    let anchored = [0, 1].map(|c| receivers[c] <= 1 && ever[c] >= 1);
     for a in 0..3 {
         if !anchored[usize::from(a == 2)] {
             continue;
