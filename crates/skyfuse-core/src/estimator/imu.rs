@@ -418,7 +418,13 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
     if core.att.source == super::attitude::AttitudeSource::Own {
         core.imu.gyro_bias = core.att.own.bias;
     }
-    super::ground::imu_sample(&mut core.ground, t, imu.gyro, imu.accel);
+    super::ground::imu_sample(
+        &mut core.ground,
+        t,
+        imu.gyro,
+        imu.accel,
+        ctx.cfg.init_accel_bias_var.max(0.0).sqrt(),
+    );
     let rate = imu.gyro.map(|g| g - core.imu.gyro_bias);
     if let Some(w) = rate {
         core.imu.rate = Some((t, w));

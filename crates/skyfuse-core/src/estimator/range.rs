@@ -96,6 +96,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, r: &Range) {
         if r.distance_m >= max || r.signal_quality == Some(SIGNAL_INVALID) {
             *core.range_bad.get_or_insert_with(source, || t) = t;
         }
+        if down && r.distance_m >= max {
+            super::ground::range_high_sample(&mut core.ground, t);
+        }
         core.reject(t, source, why, ctx);
         return;
     }
