@@ -127,7 +127,7 @@ pub fn process_vehicle_state(core: &mut Core, t: i64, source: &str, v: &VehicleS
 }
 
 /// Checks: an IMU sample for the stillness test. `accel_bias_std`: the 1σ of the
-/// accelerometer's bias the filter starts with, m/s².
+/// accelerometer's bias nothing has measured yet, m/s² (0 once the filter runs).
 pub fn imu_sample(
     g: &mut GroundState,
     t: i64,
@@ -149,9 +149,9 @@ pub fn imu_sample(
     // accelerometer's bias, which nothing has measured yet) and steady (no departure
     // from its slow average in any direction: a carry sways sideways, which the
     // magnitude alone hardly shows), and no rotation. Without the bias an IMU whose
-    // bias was 0.67-0.95 m/s² along the vertical never stood still: the filter that
-    // starts on the ground did not, and climbs beyond the range finder on a flow
-    // started in the air or never (randomised seed 2, draws 61, 139, 197: valid 1-7 %).
+    // bias was 0.67 m/s² along the vertical never stood still: the filter that starts
+    // on the ground did not, and a climb beyond the range finder on a flow started in
+    // the air or never (randomised seed 2, draw 61: valid 0.9 %).
     let weight = REST_ACCEL + REST_BIAS_SIGMAS * accel_bias_std.max(0.0);
     let accel_still = match (g.accel_lpf.y, g.accel_slow.y) {
         (Some(f), Some(s)) => (f.norm() - GRAVITY).abs() < weight && (f - s).norm() < REST_ACCEL,

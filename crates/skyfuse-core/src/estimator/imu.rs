@@ -423,7 +423,15 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
         t,
         imu.gyro,
         imu.accel,
-        ctx.cfg.init_accel_bias_var.max(0.0).sqrt(),
+        // Before the filter starts, nothing has measured the accelerometer's bias: its
+        // magnitude is no motion. Once it runs, the steady take-off climb is (a hover
+        // looks as still), and a range finder's echo would hold a climbing vehicle on
+        // its gear (scenario `sonar-climb-imu`, tried: the height ran away 290 m).
+        if core.ekf.is_none() {
+            ctx.cfg.init_accel_bias_var.max(0.0).sqrt()
+        } else {
+            0.0
+        },
     );
     let rate = imu.gyro.map(|g| g - core.imu.gyro_bias);
     if let Some(w) = rate {
