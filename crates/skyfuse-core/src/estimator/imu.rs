@@ -4,6 +4,7 @@
 
 use super::attitude::check_quaternion;
 use super::config::EstimatorConfig;
+use super::ekf::IDX_BA;
 use super::{Core, Ctx, DebugTopic, Event};
 use crate::sample::{Attitude, Imu};
 use nalgebra::{Matrix3, Vector3};
@@ -418,21 +419,20 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
     if core.att.source == super::attitude::AttitudeSource::Own {
         core.imu.gyro_bias = core.att.own.bias;
     }
-    super::ground::imu_sample(
-        &mut core.ground,
-        t,
-        imu.gyro,
-        imu.accel,
-        // Before the filter starts, nothing has measured the accelerometer's bias: its
-        // magnitude is no motion. Once it runs, the steady take-off climb is (a hover
-        // looks as still), and a range finder's echo would hold a climbing vehicle on
-        // its gear (scenario `sonar-climb-imu`, tried: the height ran away 290 m).
-        if core.ekf.is_none() {
-            ctx.cfg.init_accel_bias_var.max(0.0).sqrt()
-        } else {
-            0.0
-        },
-    );
+    // The accelerometer's bias as the filter knows it (nothing known before it starts).
+    let bias = match core.ekf.as_ref() {
+        Some(e) => {
+            let std = (0..3)
+                .map(|i| e.p[(IDX_BA + i, IDX_BA + i)].max(0.0).sqrt())
+                .fold(0.0, f64::max);
+            (e.accel_bias(), std)
+        }
+        None => (
+            Vector3::zeros(),
+            ctx.cfg.init_accel_bias_var.max(0.0).sqrt(),
+        ),
+    };
+    super::ground::imu_sample(&mut core.ground, t, imu.gyro, imu.accel, bias);
     let rate = imu.gyro.map(|g| g - core.imu.gyro_bias);
     if let Some(w) = rate {
         core.imu.rate = Some((t, w));
