@@ -236,6 +236,12 @@ fn a_hundred_vehicles_through_two_routers_all_present_one_stops_a_router_restart
         // A click on the largest cluster lists exactly its vehicles (at least two).
         let picked = p["cluster_ids"].as_array().map_or(0, Vec::len);
         assert!(picked >= 2, "{p}");
+        // The one aimed at, give or take a vehicle that moved in or out meanwhile.
+        let aimed = p["aimed_ids"].as_array().cloned().unwrap_or_default();
+        let shared = p["cluster_ids"]
+            .as_array()
+            .map_or(0, |a| a.iter().filter(|id| aimed.contains(id)).count());
+        assert!(shared >= 2 && shared + 2 >= aimed.len(), "{p}");
         // Listed: that many of 100, and every row in view one of them (a large cluster
         // may have more rows than the view).
         assert_eq!(p["cluster_shown"], format!("{picked} of 100 shown"), "{p}");

@@ -9,8 +9,9 @@ Waits until the page counts --vehicles vehicles, then prints one JSON line: `row
 (the list's <tr>s: only those in view), `scroll_rows` (names in the DOM sorted by name
 and scrolled to the end: the last vehicles of the list), `search_rows` (names shown for --search),
 `state_first` (the first row's name and presence sorted by state, worst first),
-`clusters` (clusters on the map), `cluster_ids` and `cluster_rows` (the largest
-cluster's vehicles, and the rows listed after a click on it), `cluster_note`,
+`clusters` (clusters on the map), `aimed_ids`, `cluster_ids` and `cluster_rows` (the
+largest cluster's vehicles as last drawn, the ones a click on it picked, and the rows
+listed then), `cluster_note`,
 `after_clear_shown` (the list's note once the pick is cleared: empty), `fps` (median over --seconds), `errors` (page
 errors and console errors). Exits 1 with {"ok": false, ...} if the page never shows the
 fleet.
@@ -64,7 +65,10 @@ def main():
             box = page.locator("#fleet-map").bounding_box()
             page.mouse.click(box["x"] + big["x"], box["y"] + big["y"])
             time.sleep(0.3)
-            out["cluster_ids"] = sorted(big["ids"])
+            # What the click picked: the map redraws as the vehicles move, and the
+            # cluster under the pointer may have gained or lost one since `hits`.
+            out["aimed_ids"] = sorted(big["ids"])
+            out["cluster_ids"] = sorted(page.evaluate("window.fleetMap.picked()") or [])
             out["cluster_rows"] = sorted(r["id"] for r in page.evaluate(
                 "() => [...document.querySelectorAll('#fleet-rows tr')].map((tr) => ({id: tr.dataset.id}))"))
             out["cluster_note"] = page.inner_text("#fleet-picked")

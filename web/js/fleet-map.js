@@ -16,8 +16,13 @@ const ctx = canvas.getContext("2d");
 let hits = [];
 let onReveal = () => {};
 export function onMarkerClick(fn) { onReveal = fn; }
-// For tests: where the last draw put its clusters and markers (CSS px on the canvas).
-window.fleetMap = { hits: () => hits.map((x) => ({ x: x.x, y: x.y, r: x.r, ids: x.ids })) };
+// For tests: where the last draw put its clusters and markers (CSS px on the canvas),
+// and the ids a click on a cluster picked (null: none). The map redraws as vehicles
+// move, so the cluster a click lands on may not be the one a test aimed at.
+window.fleetMap = {
+  hits: () => hits.map((x) => ({ x: x.x, y: x.y, r: x.r, ids: x.ids })),
+  picked: () => (state.picked ? [...state.picked] : null),
+};
 
 function niceStep(span) {
   const raw = span / 6, p = Math.pow(10, Math.floor(Math.log10(raw))), m = raw / p;
