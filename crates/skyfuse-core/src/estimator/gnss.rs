@@ -198,14 +198,14 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
     // σ sent says it (randomised draws 785 and 659: reset onto 14 m of multipath, and
     // fused 3.5 m off after a 75 s outage, both sent with σ 0.5-1.6 m); a fix onto an
     // estimate that already knew where it was teaches it nothing, and adds nothing.
-    let taught = unchecked_doubt(core, ctx, t, source, &cov, &enu);
+    let lost = lost(core, cfg, t);
+    let taught = unchecked_doubt(core, ctx, t, source, &cov, &enu, lost);
     if taught != Vector3::zeros() {
         carry_doubt(core, source, t, &taught, cfg.gnss_bias_tau_s);
     }
     // Control: after a spell without any position source the estimate has drifted by an
     // unknown amount; the first fix resets the position to it (PX4's reset_pos_to_gps)
-    // rather than being gated out, and the reset counter tells the autopilot.
-    let lost = lost(core, cfg, t);
+    // rather than being gated out, and the reset counter tells the autopilot (`lost`).
     // A receiver whose positions the gate refused for `reject_reset_s` (multipath coming
     // in looks exactly so; or the estimate drifted) and that is reset to after an
     // outage: which of the two was wrong nobody knows.
@@ -315,6 +315,7 @@ fn unchecked_doubt(
     source: &str,
     cov: &Matrix3<f64>,
     enu: &Vector3<f64>,
+    lost: bool,
 ) -> Vector3<f64> {
     let cfg = ctx.cfg;
     let Some(bank) = core.ekf.as_ref() else {
@@ -337,7 +338,7 @@ fn unchecked_doubt(
     // outage 8.5 m into multipath, reset onto while the hold said σ 1.3 m: 2 182 poses
     // beyond 5σ). The whole allowance on every reset, tried, cost flights reset after
     // 1 s outages up to 8 points of validity for nothing (seed 1, draws 110 and 227).
-    let jump = if lost(core, cfg, t) {
+    let jump = if lost {
         (enu - bank.gnss_bias() - bank.pos()).abs()
     } else {
         Vector3::zeros()

@@ -421,12 +421,10 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, imu: &Imu) {
     }
     // The accelerometer's bias as the filter knows it (nothing known before it starts).
     let bias = match core.ekf.as_ref() {
-        Some(e) => {
-            let std = (0..3)
-                .map(|i| e.p[(IDX_BA + i, IDX_BA + i)].max(0.0).sqrt())
-                .fold(0.0, f64::max);
-            (e.accel_bias(), std)
-        }
+        Some(e) => (
+            e.accel_bias(),
+            e.cov3(IDX_BA).diagonal().max().max(0.0).sqrt(),
+        ),
         None => (
             Vector3::zeros(),
             ctx.cfg.init_accel_bias_var.max(0.0).sqrt(),

@@ -1501,15 +1501,7 @@ fn assert_covered_with_offset_north(
 /// 10.7 m off with σ 1 m, 1 099 poses beyond 5σ).
 #[test]
 fn a_reset_to_a_receiver_refused_before_its_outage_is_as_uncertain_as_the_jump() {
-    let score = gnss_edited_flight(6, 160.0, 48.0, |g, t| {
-        if t >= 20.0 {
-            g.lat_deg += 8.0 / 111_000.0;
-        }
-        if (40.0..48.0).contains(&t) {
-            g.fix = crate::sample::GnssFixType::NoFix;
-        }
-    });
-    println!("{score:?}");
+    let score = reset_after_outage_onto_offset(160.0, 48.0, 20.0, 40.0..48.0);
     // Invalid while the doubt is beyond the alert limit, valid again as it fades.
     assert!(score.poses > 100, "{score:?}");
     assert!(score.within_3_sigma >= 0.99, "{score:?}");
@@ -1523,17 +1515,29 @@ fn a_reset_to_a_receiver_refused_before_its_outage_is_as_uncertain_as_the_jump()
 /// 2 182 poses beyond 5σ).
 #[test]
 fn a_reset_onto_multipath_after_an_outage_is_as_uncertain_as_the_jump() {
-    let score = gnss_edited_flight(6, 120.0, 40.0, |g, t| {
-        if t >= 43.0 {
+    let score = reset_after_outage_onto_offset(120.0, 40.0, 43.0, 40.0..43.0);
+    assert!(score.poses > 100, "{score:?}");
+    assert!(score.within_3_sigma >= 0.99, "{score:?}");
+}
+
+/// A GNSS + IMU flight (seed 6) whose fixes are 8 m north of the truth from
+/// `offset_from_s` on and missing over `outage` (s), scored from `from_s`.
+fn reset_after_outage_onto_offset(
+    duration_s: f64,
+    from_s: f64,
+    offset_from_s: f64,
+    outage: std::ops::Range<f64>,
+) -> FlightScore {
+    let score = gnss_edited_flight(6, duration_s, from_s, |g, t| {
+        if t >= offset_from_s {
             g.lat_deg += 8.0 / 111_000.0;
         }
-        if (40.0..43.0).contains(&t) {
+        if outage.contains(&t) {
             g.fix = crate::sample::GnssFixType::NoFix;
         }
     });
     println!("{score:?}");
-    assert!(score.poses > 100, "{score:?}");
-    assert!(score.within_3_sigma >= 0.99, "{score:?}");
+    score
 }
 
 /// [`gnss_imu_flight_scored`] with the default configuration and every GNSS fix
