@@ -73,6 +73,8 @@ pub struct Recorder {
     pub validity: Vec<(f64, bool)>,
     /// The position 1σ (E, N, U) each recorded pose was sent with, m.
     pub fused_all_std: Vec<Vector3<f64>>,
+    /// The protection levels each was sent with, horizontal and vertical, m.
+    pub fused_all_pl: Vec<[f64; 2]>,
     /// The frame the reference is given in, where it is geodetic (the simulator's
     /// home): a pose with a GNSS origin is put into it through that origin, so its
     /// error is the geodetic one (the origin is itself a fix, with that fix's error).
@@ -281,6 +283,8 @@ impl Recorder {
         self.validity.push((t, pose.valid));
         self.fused_all_std
             .push(pose.position_cov.diagonal().map(|v| v.max(0.0).sqrt()));
+        self.fused_all_pl
+            .push([pose.protection.horizontal_m, pose.protection.vertical_m]);
         if pose.valid {
             let before = self.fused.t.len();
             push(&mut self.fused, t, pose.position, pose.orientation);
@@ -622,18 +626,25 @@ fn tum(name: &str, tr: &Trajectory) -> Result<String, OfflineError> {
     })
 }
 
-/// `t sigma_e sigma_n sigma_u valid` per recorded pose: the uncertainty each pose was
-/// sent with beside `fused_all.tum`, to plot against the error.
+/// `t sigma_e sigma_n sigma_u valid hpl vpl` per recorded pose: the uncertainty and
+/// the protection levels each pose was sent with beside `fused_all.tum`, to plot
+/// against the error.
 fn sigma_text(rec: &Recorder) -> String {
-    let mut out = Vec::with_capacity(rec.validity.len() * 48);
-    out.extend_from_slice(b"# t sigma_e sigma_n sigma_u valid\n");
-    for ((t, valid), s) in rec.validity.iter().zip(&rec.fused_all_std) {
+    let mut out = Vec::with_capacity(rec.validity.len() * 64);
+    out.extend_from_slice(b"# t sigma_e sigma_n sigma_u valid hpl vpl\n");
+    let poses = rec.validity.iter().zip(&rec.fused_all_std);
+    for (((t, valid), s), pl) in poses.zip(&rec.fused_all_pl) {
         crate::eval::push_fixed(&mut out, *t, 6);
         for v in s.iter() {
             out.push(b' ');
             crate::eval::push_fixed(&mut out, *v, 4);
         }
-        out.extend_from_slice(if *valid { b" 1\n" } else { b" 0\n" });
+        out.extend_from_slice(if *valid { b" 1" } else { b" 0" });
+        for v in pl {
+            out.push(b' ');
+            crate::eval::push_fixed(&mut out, *v, 3);
+        }
+        out.push(b'\n');
     }
     String::from_utf8(out).unwrap_or_default()
 }
