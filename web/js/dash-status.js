@@ -147,6 +147,12 @@ function renderEstimator(st) {
       const d = Math.hypot(aside.separation[0], aside.separation[1]);
       rows.push(['were it right', `${aside.source}: ${fmt(d, 1)} m H / ${fmt(Math.abs(aside.separation[2]), 1)} m V (in the bound)`, 'full']);
     }
+    const held = e.integrity && Array.isArray(e.integrity.tests) ? e.integrity.tests.filter((t) => t.lone_receiver_held) : [];
+    // The only receiver and the dead reckoning disagree: kept, and the bound holds both.
+    for (const t of held) {
+      const d = Math.hypot(t.separation[0], t.separation[1]);
+      rows.push(['disagrees', `${t.source} (the only receiver) and the rest: ${fmt(d, 1)} m H (kept; in the bound)`, 'full']);
+    }
     rows.push(['sources used', Array.isArray(e.sources_used) && e.sources_used.length ? e.sources_used.join(', ') : 'none', 'full']);
     if (e.calibration && e.calibration.state) {
       const c = e.calibration;

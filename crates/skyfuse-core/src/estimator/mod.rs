@@ -861,9 +861,13 @@ impl Estimator {
                     .map(|(s, _)| s.clone())
                     .collect(),
                 exclusions: c.integrity.exclusions,
+                // The one farthest from the estimate, of those the exclusions set aside.
                 set_aside: c.ekf.as_ref().and_then(|b| {
-                    let s = b.shadow()?;
-                    let d = b.main().pos() - s.ekf.pos();
+                    let (s, d) = b
+                        .shadows()
+                        .iter()
+                        .map(|s| (s, b.main().pos() - s.ekf.pos()))
+                        .max_by(|x, y| x.1.norm().total_cmp(&y.1.norm()))?;
                     Some(status::SetAside {
                         source: s.with.clone(),
                         separation: [d.x, d.y, d.z],

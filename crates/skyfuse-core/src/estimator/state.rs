@@ -338,8 +338,8 @@ impl Core {
             // Excluded by the integrity monitor: tested, not fused, until it agrees
             // again for long enough.
             let out = bank.innovation_test(m, gate);
-            // The solution that kept it takes it (see `bank::Shadow`).
-            if bank.shadow().is_some_and(|s| s.with == source) {
+            // The solutions that kept it take it (see `bank::Shadow`).
+            if bank.shadows().iter().any(|s| s.takes(source)) {
                 let imu_drives = self.imu_drives(t, ctx);
                 let delayed = self.delayed(imu_drives, source, m, extra, ctx);
                 if let Some(bank) = self.ekf.as_mut() {

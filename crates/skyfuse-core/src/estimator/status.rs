@@ -41,9 +41,9 @@ pub struct IntegrityStatus {
     pub tests: Vec<super::integrity::SeparationTest>,
     pub excluded: Vec<String>,
     pub exclusions: u64,
-    /// The solution the last exclusion set aside, while its source is out: the
-    /// source it keeps and where it is against the estimate, ENU m. The bound sent
-    /// covers it.
+    /// Of the solutions the exclusions set aside (one per source out), the one
+    /// farthest from the estimate: the source it keeps and where it is against the
+    /// estimate, ENU m. The bound sent covers every one.
     pub set_aside: Option<SetAside>,
 }
 
