@@ -270,6 +270,18 @@ mod tests {
         Measurement::of_states(IDX_P, 3, &(z - at.pos()), &(Matrix3::identity() * var))
     }
 
+    /// Five positions `z` of `source` fused, then `source` excluded at `t`: the main
+    /// solution as it was with it.
+    fn fused_then_excluded(b: &mut Bank, source: &str, z: Vector3<f64>, t: i64) -> Vector3<f64> {
+        for _ in 0..5 {
+            let m = position(z, b.main(), 0.1);
+            b.update(&m, 1e9, Some(source));
+        }
+        let with = b.main().pos();
+        assert!(b.exclude(source, t));
+        with
+    }
+
     /// A sub-filter fed all but one source ends exactly where a filter fed only the
     /// others would: the linearisation about the main filter costs nothing for a
     /// linear measurement.
@@ -334,12 +346,7 @@ mod tests {
     fn an_exclusion_keeps_the_solution_it_set_aside() {
         let mut b = bank();
         b.ensure_sub("gps", 0);
-        for _ in 0..5 {
-            let m = position(Vector3::new(3.0, 0.0, 0.0), b.main(), 0.1);
-            b.update(&m, 1e9, Some("gps"));
-        }
-        let with_gps = b.main().pos();
-        assert!(b.exclude("gps", 7));
+        let with_gps = fused_then_excluded(&mut b, "gps", Vector3::new(3.0, 0.0, 0.0), 7);
         let shadow = b.shadows().first().expect("the set-aside solution");
         assert_eq!(shadow.with, "gps");
         assert_eq!(shadow.ekf.pos(), with_gps);
@@ -378,12 +385,7 @@ mod tests {
         let mut b = bank();
         b.ensure_sub("gps", 0);
         b.ensure_sub("baro", 0);
-        for _ in 0..5 {
-            let m = position(Vector3::new(0.0, 0.0, 3.0), b.main(), 0.1);
-            b.update(&m, 1e9, Some("gps"));
-        }
-        let with_gps = b.main().pos();
-        assert!(b.exclude("gps", 7));
+        let with_gps = fused_then_excluded(&mut b, "gps", Vector3::new(0.0, 0.0, 3.0), 7);
         for _ in 0..5 {
             let m = position(Vector3::new(0.0, 0.0, 3.0), b.main(), 0.1);
             b.update_shadow(&m, 1e9, "gps");

@@ -25,8 +25,8 @@
 //!   sub-filter is dead reckoning, and its departure says the two disagree, not
 //!   which is wrong: the bound takes the whole separation instead (and the receiver's
 //!   unreported error, `gnss_fault_horizontal_m`), and the sub-filter starts again
-//!   once it has been held for `restart_s`. Excluded, the receiver could agree again only with an
-//!   estimate that had drifted away from it: the lock-out.
+//!   once it has been held for `restart_s`. Excluded, the receiver could agree again
+//!   only with an estimate that had drifted away from it: the lock-out.
 //! - **Protection levels**, per axis `PL = max_k (T_k + K_md·σ_k)` over the monitored
 //!   sub-filters; horizontal `HPL = max(K_H·d_major, √(PL_E² + PL_N²))`, where the
 //!   fault-free term is the SBAS one (RTCA DO-229): `d_major` the error ellipse's
