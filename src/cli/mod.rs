@@ -168,6 +168,11 @@ pub enum Command {
         /// With `--monte-carlo`: parallel runs (default: the cores).
         #[arg(long, value_name = "J", requires = "monte_carlo")]
         jobs: Option<usize>,
+        /// With `--monte-carlo`: beyond the draw, one flight in five gets an
+        /// accelerometer that steps by 1 m/s² at a random time and stays so (a knock
+        /// that shifted its mount); the rest of every draw is the same flight.
+        #[arg(long, requires = "monte_carlo")]
+        accel_steps: bool,
     },
     /// Replay a recorded flight (a PX4 ULog, a directory of its CSV export by pyulog's
     /// ulog2csv, an ArduPilot DataFlash log, a MAVLink telemetry log, a skyfuse
@@ -661,11 +666,13 @@ async fn dispatch(cmd: Command) -> Result<(), String> {
             monte_carlo: Some(n),
             first,
             jobs,
+            accel_steps,
             out,
             ..
         } => {
             let c = Config::load(config.as_deref(), env_vars()).map_err(|e| e.to_string())?;
-            monte_carlo::run(&c, seed, first, n, jobs, out.as_deref())
+            let stress = crate::sim::monte_carlo::Stress { accel_steps };
+            monte_carlo::run(&c, seed, first, n, stress, jobs, out.as_deref())
         }
         Command::Sim {
             seed,

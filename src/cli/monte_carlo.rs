@@ -5,6 +5,7 @@
 use super::runs::Progress;
 use crate::config::Config;
 use crate::offline::{self, DrawResult, FamilyRow};
+use crate::sim::monte_carlo::Stress;
 use std::io::Write;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{mpsc, Arc};
@@ -14,6 +15,7 @@ pub(super) fn run(
     seed: u64,
     first: u64,
     n: u64,
+    stress: Stress,
     jobs: Option<usize>,
     out: Option<&std::path::Path>,
 ) -> Result<(), String> {
@@ -22,9 +24,15 @@ pub(super) fn run(
     }
     // One flight with a place to put it: every file of a scenario run, to look at.
     if let (1, Some(dir)) = (n, out) {
-        let summary =
-            offline::run_draw_files(seed, first, c.estimator.clone(), c.health.clone(), dir)
-                .map_err(|e| e.to_string())?;
+        let summary = offline::run_draw_files(
+            seed,
+            first,
+            stress,
+            c.estimator.clone(),
+            c.health.clone(),
+            dir,
+        )
+        .map_err(|e| e.to_string())?;
         println!("{}", summary.input);
         println!(
             "{}",
@@ -61,7 +69,7 @@ pub(super) fn run(
                 if i >= end {
                     break;
                 }
-                let r = offline::run_draw(seed, i, est.clone(), health.clone());
+                let r = offline::run_draw_stressed(seed, i, stress, est.clone(), health.clone());
                 if tx.send(r).is_err() {
                     break;
                 }
@@ -69,7 +77,14 @@ pub(super) fn run(
         })
         .collect();
     drop(tx);
-    let mut progress = Progress::new(format!("{n} flights, seed {seed}, {jobs} at a time"));
+    let stressed = if stress.accel_steps {
+        ", accelerometer steps"
+    } else {
+        ""
+    };
+    let mut progress = Progress::new(format!(
+        "{n} flights, seed {seed}{stressed}, {jobs} at a time"
+    ));
     let mut results = Vec::with_capacity(n as usize);
     for r in rx {
         if let Some((f, path)) = runs_file.as_mut() {

@@ -9,6 +9,8 @@ const KINDS = {
   source_switch: ['switch', 'source_switch'], segment: ['segment', 'source_switch'],
   reset: ['reset', 'reset'], terrain_reset: ['terrain', 'reset'], origin_set: ['origin', 'reset'],
   monitor_reset: ['monitor', 'monitor'], handled: ['handled', 'monitor'], constraint: ['constraint', 'monitor'],
+  integrity_exclusion: ['excluded', 'reset'], integrity_readmit: ['readmitted', 'source_switch'],
+  dead_reckoning_doubted: ['IMU doubted', 'reset'],
   calibration_started: ['calib.', 'calibration'], calibration_result: ['calib.', 'calibration'],
   fault_injected: ['fault', 'fault_injected'], fault_cleared: ['fault', 'fault_injected'],
   zenoh_link: ['zenoh', 'control'], initialised: ['init', 'info'], sample_rejected: ['rejected', 'info'],

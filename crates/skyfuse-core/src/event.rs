@@ -152,6 +152,14 @@ pub enum Event {
     IntegrityReadmit {
         excluded_s: f64,
     },
+    /// A velocity back after `gap_s` of dead reckoning disagreed beyond the IMU's noise:
+    /// the filters allowed for an accelerometer fault over the gap (the position
+    /// `reach_m` off at 1σ) and took it (`test_ratio` against the widened filter).
+    DeadReckoningDoubted {
+        gap_s: f64,
+        reach_m: f64,
+        test_ratio: f64,
+    },
 }
 
 /// The three ways the pose is reset.
@@ -239,7 +247,7 @@ pub enum ConstraintChange {
 
 impl Event {
     /// Every kind, as `kind` names it (web/PROTOCOL.md lists these).
-    pub const KINDS: [&'static str; 23] = [
+    pub const KINDS: [&'static str; 24] = [
         "initialised",
         "origin_set",
         "reset",
@@ -263,6 +271,7 @@ impl Event {
         "fault_cleared",
         "integrity_exclusion",
         "integrity_readmit",
+        "dead_reckoning_doubted",
     ];
 
     pub fn kind(&self) -> &'static str {
@@ -288,6 +297,7 @@ impl Event {
             Event::ZenohLink => "zenoh_link",
             Event::IntegrityExclusion { .. } => "integrity_exclusion",
             Event::IntegrityReadmit { .. } => "integrity_readmit",
+            Event::DeadReckoningDoubted { .. } => "dead_reckoning_doubted",
             Event::FaultInjected => "fault_injected",
             Event::FaultCleared => "fault_cleared",
         }
@@ -403,6 +413,11 @@ mod tests {
                 reset_counter: 2,
             },
             Event::IntegrityReadmit { excluded_s: 12.0 },
+            Event::DeadReckoningDoubted {
+                gap_s: 4.0,
+                reach_m: 8.0,
+                test_ratio: 0.4,
+            },
             Event::Reset(Reset::Rejected {
                 reset_counter: 3,
                 rejected_s: 3.1,

@@ -15,6 +15,7 @@ use crate::geo::LocalEnu;
 use crate::health::HealthConfig;
 use crate::rate_limit::{RateLimit, DEFAULT_POSE_RATE_HZ};
 use crate::sample::{GnssFixType, Sample, SensorData, SensorKind};
+use crate::sim::monte_carlo::Stress;
 use crate::sim::scenario::Scenario;
 use crate::sim::truth::truth_of;
 use crate::source_map::SourceMap;
@@ -1055,10 +1056,11 @@ type TruthFn = Box<dyn Fn(f64) -> (Vector3<f64>, UnitQuaternion<f64>)>;
 fn fly_draw(
     seed: u64,
     index: u64,
+    stress: Stress,
     cfg: EstimatorConfig,
     health: HealthConfig,
 ) -> (crate::sim::monte_carlo::Draw, Recorder, u64, TruthFn) {
-    let draw = crate::sim::monte_carlo::draw(seed, index);
+    let draw = crate::sim::monte_carlo::draw_stressed(seed, index, stress);
     let scn = draw.scenario();
     let (rec, samples) = fly(&scn, draw.seed, draw.duration_s(), cfg, health, &mut |_| {});
     let profile = scn.profile;
@@ -1083,12 +1085,13 @@ fn draw_reference<'a>(draw: &crate::sim::monte_carlo::Draw, truth: &'a TruthFn) 
 pub fn run_draw_files(
     seed: u64,
     index: u64,
+    stress: Stress,
     cfg: EstimatorConfig,
     health: HealthConfig,
     out: &Path,
 ) -> Result<Summary, OfflineError> {
     let mode = cfg.mode;
-    let (draw, rec, samples, truth) = fly_draw(seed, index, cfg, health);
+    let (draw, rec, samples, truth) = fly_draw(seed, index, stress, cfg, health);
     let reference = draw_reference(&draw, &truth);
     let input = RunInput {
         name: format!(
@@ -1103,7 +1106,18 @@ pub fn run_draw_files(
 
 /// Fly randomised flight `index` of a run seeded `seed` through `cfg` and score it.
 pub fn run_draw(seed: u64, index: u64, cfg: EstimatorConfig, health: HealthConfig) -> DrawResult {
-    let (draw, rec, samples, truth) = fly_draw(seed, index, cfg, health);
+    run_draw_stressed(seed, index, Stress::default(), cfg, health)
+}
+
+/// [`run_draw`] with the faults of `stress` on top of the draw's.
+pub fn run_draw_stressed(
+    seed: u64,
+    index: u64,
+    stress: Stress,
+    cfg: EstimatorConfig,
+    health: HealthConfig,
+) -> DrawResult {
+    let (draw, rec, samples, truth) = fly_draw(seed, index, stress, cfg, health);
     let duration_s = draw.duration_s();
     let reference = draw_reference(&draw, &truth);
     let (scores, consistency) = score(&rec, &reference, None);

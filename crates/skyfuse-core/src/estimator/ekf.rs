@@ -858,6 +858,24 @@ impl Ekf {
         self.symmetrise();
     }
 
+    /// What an accelerometer off by `accel` (m/s², 1σ) for the last `gap_s` could have
+    /// done on the world `axes`: the velocity off by a·T, the position by a·T²/2, and
+    /// the bias that would learn it as uncertain as the fault (body axes, taken level:
+    /// x and y for the horizontal, z for the up). Uncorrelated: when the fault began
+    /// in the gap nobody knows, so the velocity measured after it does not say what
+    /// it did to the position (taken as one error from the gap's start, a flow back
+    /// after 13 s moved the position by its velocity's half-gap, 24 m the wrong way).
+    pub fn add_dead_reckoning_fault(&mut self, axes: &[usize], accel: f64, gap_s: f64) {
+        let (dv, dp) = (accel * gap_s, 0.5 * accel * gap_s * gap_s);
+        for &a in axes {
+            let (p, v, b) = (IDX_P + a, IDX_V + a, IDX_BA + a);
+            self.p[(p, p)] += dp * dp;
+            self.p[(v, v)] += dv * dv;
+            self.p[(b, b)] += accel * accel;
+        }
+        self.symmetrise();
+    }
+
     /// The states `idx` forget what they knew: variance `var`, uncorrelated with the
     /// rest (what a reset to a measurement starts from).
     pub fn forget(&mut self, idx: &[usize], var: f64) {
@@ -1435,6 +1453,45 @@ mod tests {
     }
 
     /// At rest at the origin, unit position and velocity variances, no bias.
+    /// An accelerometer fault over a gap of T widens the velocity by a·T and the
+    /// position by a·T²/2 on the axes asked, uncorrelated, and reopens their bias: a
+    /// velocity measured after it then says nothing of the position (nobody knows
+    /// when in the gap the fault began), and a velocity 6 m/s off that the gate
+    /// refused before passes after a 4 s gap.
+    #[test]
+    fn a_dead_reckoning_fault_widens_what_it_could_have_moved() {
+        let mut ekf = unit_filter();
+        let m = Measurement::of_states(
+            IDX_V,
+            2,
+            &Vector3::new(6.0, 0.0, 0.0),
+            &(Matrix3::identity() * 0.01),
+        );
+        assert!(!ekf.innovation_test(&m, 9.0).accepted);
+        let before = ekf.p.clone();
+        ekf.add_dead_reckoning_fault(&[0, 1], 1.0, 4.0);
+        for a in 0..2 {
+            let (p, v, b) = (IDX_P + a, IDX_V + a, IDX_BA + a);
+            assert!((ekf.p[(p, p)] - before[(p, p)] - 64.0).abs() < 1e-9);
+            assert!((ekf.p[(v, v)] - before[(v, v)] - 16.0).abs() < 1e-9);
+            assert!((ekf.p[(b, b)] - before[(b, b)] - 1.0).abs() < 1e-9);
+            assert_eq!(ekf.p[(p, v)], before[(p, v)]);
+        }
+        for i in [IDX_P + 2, IDX_V + 2, IDX_BA + 2] {
+            let grew = ekf.p[(i, i)] - before[(i, i)];
+            assert!(grew.abs() < 1e-9, "the up axis is untouched: {grew}");
+        }
+        assert!(ekf.innovation_test(&m, 9.0).accepted);
+        let p_east = ekf.p[(IDX_P, IDX_P)];
+        assert!(ekf.update(&m, 9.0, false).accepted);
+        assert!((ekf.x[IDX_V] - 6.0).abs() < 0.5, "{}", ekf.x[IDX_V]);
+        assert!(
+            ekf.p[(IDX_P, IDX_P)] > 0.99 * p_east,
+            "the position kept its doubt: {} of {p_east}",
+            ekf.p[(IDX_P, IDX_P)]
+        );
+    }
+
     fn unit_filter() -> Ekf {
         Ekf::new(
             Vector3::zeros(),

@@ -370,6 +370,9 @@ impl Core {
             None
         };
         let m = delayed.as_ref().unwrap_or(m);
+        if aiding && imu_drives && self.mode_ekf_direct {
+            self.doubt_dead_reckoning(t, source, m, gate);
+        }
         let Some(bank) = self.ekf.as_mut() else {
             return false;
         };
@@ -410,6 +413,69 @@ impl Core {
             self.reset_if_locked_out(t, source, m, ctx);
         }
         out.accepted
+    }
+
+    /// A velocity measurement back after its channel went unaided for
+    /// [`DEAD_RECKONING_DOUBT_AFTER_US`] or more, that the gate would refuse: the IMU
+    /// carried the estimate alone meanwhile, and an accelerometer that stepped in that
+    /// time (a knock, a loose mount) carried it off with σ as small as the noise model
+    /// says. The velocity is the one that can tell (a GNSS's multipath moves its
+    /// positions, not its Doppler), so a velocity that passes once the filter allows
+    /// for such a fault ([`DEAD_RECKONING_FAULT_MPS2`] over the gap) takes that
+    /// allowance into every filter and is fused; the position keeps what the fault
+    /// could have done to it. Without it, the estimate that dead-reckoned went on as
+    /// the truth and the source that came back was refused, excluded, or its
+    /// disagreement taken for a GNSS's slow error (randomised flights with an
+    /// accelerometer step of 1 m/s² during a flow outage: 19.6 m off with σ 1.2 m).
+    fn doubt_dead_reckoning(&mut self, t: i64, source: &str, m: &Measurement, gate: f64) {
+        let ch = Channels::of(m);
+        if ch.position[0] || ch.position[1] || !(ch.horizontal || ch.vertical) {
+            return;
+        }
+        let last = if ch.horizontal {
+            self.ground.last_h_aiding
+        } else {
+            self.last_v_aiding
+        };
+        let Some(gap) = last
+            .map(|l| t - l)
+            .filter(|&g| g >= DEAD_RECKONING_DOUBT_AFTER_US)
+        else {
+            return;
+        };
+        let Some(bank) = self.ekf.as_mut() else {
+            return;
+        };
+        if bank.main().innovation_test(m, gate).accepted {
+            return;
+        }
+        let gap_s = gap as f64 * 1e-6;
+        let axes: &[usize] = if ch.horizontal { &[0, 1] } else { &[2] };
+        let mut trial = bank.main().clone();
+        trial.add_dead_reckoning_fault(axes, DEAD_RECKONING_FAULT_MPS2, gap_s);
+        let out = trial.innovation_test(m, gate);
+        if !out.accepted {
+            return;
+        }
+        bank.each(|e| e.add_dead_reckoning_fault(axes, DEAD_RECKONING_FAULT_MPS2, gap_s));
+        let channel = if ch.horizontal {
+            "horizontal"
+        } else {
+            "vertical"
+        };
+        let reach_m = 0.5 * DEAD_RECKONING_FAULT_MPS2 * gap_s * gap_s;
+        self.event(
+            t,
+            Some(source),
+            format!(
+                "{source}: back after {gap_s:.1} s of {channel} dead reckoning and off by more than the IMU's noise allows: the estimate may have been carried {reach_m:.1} m by an accelerometer fault, and takes {source} again"
+            ),
+            Event::DeadReckoningDoubted {
+                gap_s,
+                reach_m,
+                test_ratio: out.test_ratio,
+            },
+        );
     }
 
     /// `m` from an aiding `source` with its delay in it (see [`with_delay`]), where
@@ -1399,6 +1465,15 @@ const DELAY_BOUND_SIGMAS: f64 = 4.0;
 /// The variance the reset states take before the measurement they reset to, m² or
 /// (m/s)²: far larger than any jump, so the measurement alone decides.
 const RESET_FORGET_VAR: f64 = 1e6;
+
+/// An unaided spell of a channel this long makes its dead reckoning suspect when a
+/// velocity comes back refused (see `Core::doubt_dead_reckoning`), µs: the aiding
+/// timeout, beyond one sample of the slowest flow or GNSS.
+const DEAD_RECKONING_DOUBT_AFTER_US: i64 = 1_000_000;
+
+/// The accelerometer fault allowed for then, m/s² (1σ): as large as the biases the
+/// randomised flights draw, and the step of PX4's square flown with a shifted mount.
+const DEAD_RECKONING_FAULT_MPS2: f64 = 1.0;
 
 /// The height's aiding timeout, in aiding timeouts (see [`Invalid::NoHeight`]).
 const HEIGHT_TIMEOUT_FACTOR: f64 = 2.0;

@@ -24,7 +24,7 @@
 //! Everything comes from the draw's seed, so a failing draw is reproduced by its
 //! number alone.
 
-use super::faults::{Fault, FaultKind};
+use super::faults::{Fault, FaultKind, ACCEL_OFFSET_MPS2};
 use super::plan::{FlightPlan, PlanKind};
 use super::scenario::Scenario;
 use super::sensors::{DarkGround, Hardware, Multipath, StreamSpec, YawError};
@@ -102,8 +102,29 @@ fn input_id(kind: SensorKind) -> &'static str {
     }
 }
 
+/// Faults beyond what the integrity issue draws, each from its own random stream so
+/// that a draw is the same flight with and without them.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Stress {
+    /// One flight in [`1 / ACCEL_STEP_SHARE`](ACCEL_STEP_SHARE) gets an accelerometer
+    /// that steps by [`ACCEL_OFFSET_MPS2`](super::faults::ACCEL_OFFSET_MPS2) along the
+    /// body's forward axis at a random time and stays so (a knock that shifted its
+    /// mount): `skyfuse sim --monte-carlo N --accel-steps`.
+    pub accel_steps: bool,
+}
+
+/// The share of flights that get an accelerometer step under [`Stress::accel_steps`].
+pub const ACCEL_STEP_SHARE: f64 = 0.2;
+/// Mixed into the draw's seed for the accelerometer step's own stream.
+const ACCEL_STEP_STREAM: u64 = 0x0acc_e15e_5dab_0001;
+
 /// Draw vehicle, sensors and flight number `index` of a run seeded `seed`.
 pub fn draw(seed: u64, index: u64) -> Draw {
+    draw_stressed(seed, index, Stress::default())
+}
+
+/// [`draw`], with the faults of `stress` on top.
+pub fn draw_stressed(seed: u64, index: u64, stress: Stress) -> Draw {
     let seed = draw_seed(seed, index);
     let mut rng = SmallRng::seed_from_u64(seed);
     let rng = &mut rng;
@@ -276,6 +297,18 @@ pub fn draw(seed: u64, index: u64) -> Draw {
             });
         }
     }
+    if stress.accel_steps {
+        // Its own stream: every other figure of the draw stays what it was without.
+        let mut step = SmallRng::seed_from_u64(seed ^ ACCEL_STEP_STREAM);
+        if step.gen_bool(ACCEL_STEP_SHARE) {
+            faults.push(Fault {
+                sensor: input_id(SensorKind::Imu).to_string(),
+                kind: FaultKind::AccelOffset,
+                start_s: uniform(&mut step, 20.0, (duration - 20.0).max(21.0)),
+                end_s: f64::INFINITY,
+            });
+        }
+    }
     faults.sort_by(|a, b| a.start_s.total_cmp(&b.start_s));
     Draw {
         seed,
@@ -356,7 +389,7 @@ impl Draw {
         let h = &self.hardware;
         let p = &self.plan;
         format!(
-            "{} {:.0} s at {:.1} m, {:.1} m/s, size {:.1} m{}; {}; flow scale {:.3} mount {:.1}°{}; accel bias {:.2} m/s²; yaw error {:.1}° ± {:.1}°; range {:.2}-{:.1} m ({:.0} % spurious); {} faults",
+            "{} {:.0} s at {:.1} m, {:.1} m/s, size {:.1} m{}; {}; flow scale {:.3} mount {:.1}°{}; accel bias {:.2} m/s²{}; yaw error {:.1}° ± {:.1}°; range {:.2}-{:.1} m ({:.0} % spurious); {} faults",
             p.kind.as_str(),
             p.duration_s,
             p.height_m,
@@ -372,6 +405,13 @@ impl Draw {
             h.flow_mount_yaw_rad.to_degrees(),
             if h.flow_tof { " (own ToF)" } else { "" },
             h.accel_bias.map_or(0.0, |b| b.norm()),
+            self.faults
+                .iter()
+                .find(|f| f.kind == FaultKind::AccelOffset)
+                .map_or_else(String::new, |f| format!(
+                    ", stepping {ACCEL_OFFSET_MPS2} m/s² at {:.0} s",
+                    f.start_s
+                )),
             h.yaw_error.bias_rad.to_degrees(),
             h.yaw_error.amplitude_rad.to_degrees(),
             h.range_min_m,
@@ -426,5 +466,39 @@ mod tests {
             }
         }
         assert_eq!(kinds.len(), PlanKind::ALL.len());
+    }
+
+    #[test]
+    fn an_accelerometer_step_is_one_fault_more_on_the_same_flight() {
+        let stress = Stress { accel_steps: true };
+        let mut stepped = 0;
+        for i in 0..200 {
+            let (plain, more) = (draw(1, i), draw_stressed(1, i, stress));
+            let steps: Vec<&Fault> = more
+                .faults
+                .iter()
+                .filter(|f| f.kind == FaultKind::AccelOffset)
+                .collect();
+            let rest: Vec<&Fault> = more
+                .faults
+                .iter()
+                .filter(|f| f.kind != FaultKind::AccelOffset)
+                .collect();
+            assert_eq!(rest, plain.faults.iter().collect::<Vec<_>>(), "draw {i}");
+            assert_eq!(more.plan, plain.plan, "draw {i}");
+            assert_eq!(more.streams, plain.streams, "draw {i}");
+            match steps.as_slice() {
+                [] => assert!(!more.describe().contains("stepping")),
+                [f] => {
+                    stepped += 1;
+                    assert_eq!(f.sensor, "imu");
+                    assert!(f.start_s >= 20.0 && f.end_s.is_infinite());
+                    assert!(more.describe().contains("stepping 1 m/s²"));
+                }
+                _ => panic!("draw {i}: {} steps", steps.len()),
+            }
+        }
+        // One flight in five, give or take.
+        assert!((20..=60).contains(&stepped), "{stepped} of 200 stepped");
     }
 }
