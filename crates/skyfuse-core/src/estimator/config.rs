@@ -91,6 +91,10 @@ pub const DEFAULT_AIDING_TIMEOUT_MS: f64 = 1000.0;
 /// s (EKF2's and EKF3's reset after a source has been rejected for a while): otherwise
 /// the filter's own drift keeps its only source locked out for good.
 pub const DEFAULT_REJECT_RESET_S: f64 = 3.0;
+/// The accelerometer fault allowed for when a velocity comes back refused after a
+/// second or more of dead reckoning, m/s² (1σ; 0: never): as large as the biases the
+/// randomised flights draw, and the step of PX4's square flown with a shifted mount.
+pub const DEFAULT_DEAD_RECKONING_FAULT_MPS2: f64 = 1.0;
 /// After such a reset the pose is invalid for this long, and until the source is
 /// accepted again, s.
 pub const DEFAULT_RESET_CONVERGE_S: f64 = 2.0;
@@ -360,6 +364,7 @@ pub struct EstimatorConfig {
     pub ground_vel_noise: f64,
     pub max_pos_std_m: f64,
     pub reject_reset_s: f64,
+    pub dead_reckoning_fault_mps2: f64,
     pub reset_converge_s: f64,
     pub monitor_enabled: bool,
     pub monitor_reset: bool,
@@ -453,6 +458,7 @@ impl Default for EstimatorConfig {
             ground_vel_noise: DEFAULT_GROUND_VEL_NOISE,
             max_pos_std_m: DEFAULT_MAX_POS_STD_M,
             reject_reset_s: DEFAULT_REJECT_RESET_S,
+            dead_reckoning_fault_mps2: DEFAULT_DEAD_RECKONING_FAULT_MPS2,
             reset_converge_s: DEFAULT_RESET_CONVERGE_S,
             monitor_enabled: DEFAULT_MONITOR_ENABLED,
             monitor_reset: DEFAULT_MONITOR_RESET,
@@ -591,6 +597,7 @@ impl EstimatorConfig {
         for (name, v) in [
             ("range_quality_hold_ms", self.range_quality_hold_ms),
             ("flow_quality_hold_ms", self.flow_quality_hold_ms),
+            ("dead_reckoning_fault_mps2", self.dead_reckoning_fault_mps2),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("estimator.{name} must be 0 or more, got {v}"));

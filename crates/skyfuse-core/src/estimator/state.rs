@@ -371,7 +371,7 @@ impl Core {
         };
         let m = delayed.as_ref().unwrap_or(m);
         if aiding && imu_drives && self.mode_ekf_direct {
-            self.doubt_dead_reckoning(t, source, m, gate);
+            self.doubt_dead_reckoning(t, source, m, gate, ctx.cfg.dead_reckoning_fault_mps2);
         }
         let Some(bank) = self.ekf.as_mut() else {
             return false;
@@ -421,15 +421,22 @@ impl Core {
     /// time (a knock, a loose mount) carried it off with σ as small as the noise model
     /// says. The velocity is the one that can tell (a GNSS's multipath moves its
     /// positions, not its Doppler), so a velocity that passes once the filter allows
-    /// for such a fault ([`DEAD_RECKONING_FAULT_MPS2`] over the gap) takes that
+    /// for such a fault (`fault`, m/s², over the gap) takes that
     /// allowance into every filter and is fused; the position keeps what the fault
     /// could have done to it. Without it, the estimate that dead-reckoned went on as
     /// the truth and the source that came back was refused, excluded, or its
     /// disagreement taken for a GNSS's slow error (randomised flights with an
     /// accelerometer step of 1 m/s² during a flow outage: 19.6 m off with σ 1.2 m).
-    fn doubt_dead_reckoning(&mut self, t: i64, source: &str, m: &Measurement, gate: f64) {
+    fn doubt_dead_reckoning(
+        &mut self,
+        t: i64,
+        source: &str,
+        m: &Measurement,
+        gate: f64,
+        fault: f64,
+    ) {
         let ch = Channels::of(m);
-        if ch.position[0] || ch.position[1] || !(ch.horizontal || ch.vertical) {
+        if fault <= 0.0 || ch.position[0] || ch.position[1] || !(ch.horizontal || ch.vertical) {
             return;
         }
         let last = if ch.horizontal {
@@ -452,18 +459,18 @@ impl Core {
         let gap_s = gap as f64 * 1e-6;
         let axes: &[usize] = if ch.horizontal { &[0, 1] } else { &[2] };
         let mut trial = bank.main().clone();
-        trial.add_dead_reckoning_fault(axes, DEAD_RECKONING_FAULT_MPS2, gap_s);
+        trial.add_dead_reckoning_fault(axes, fault, gap_s);
         let out = trial.innovation_test(m, gate);
         if !out.accepted {
             return;
         }
-        bank.each(|e| e.add_dead_reckoning_fault(axes, DEAD_RECKONING_FAULT_MPS2, gap_s));
+        bank.each(|e| e.add_dead_reckoning_fault(axes, fault, gap_s));
         let channel = if ch.horizontal {
             "horizontal"
         } else {
             "vertical"
         };
-        let reach_m = 0.5 * DEAD_RECKONING_FAULT_MPS2 * gap_s * gap_s;
+        let reach_m = 0.5 * fault * gap_s * gap_s;
         self.event(
             t,
             Some(source),
@@ -1470,10 +1477,6 @@ const RESET_FORGET_VAR: f64 = 1e6;
 /// velocity comes back refused (see `Core::doubt_dead_reckoning`), µs: the aiding
 /// timeout, beyond one sample of the slowest flow or GNSS.
 const DEAD_RECKONING_DOUBT_AFTER_US: i64 = 1_000_000;
-
-/// The accelerometer fault allowed for then, m/s² (1σ): as large as the biases the
-/// randomised flights draw, and the step of PX4's square flown with a shifted mount.
-const DEAD_RECKONING_FAULT_MPS2: f64 = 1.0;
 
 /// The height's aiding timeout, in aiding timeouts (see [`Invalid::NoHeight`]).
 const HEIGHT_TIMEOUT_FACTOR: f64 = 2.0;
