@@ -10,7 +10,7 @@ const KINDS = {
   reset: ['reset', 'reset'], terrain_reset: ['terrain', 'reset'], origin_set: ['origin', 'reset'],
   monitor_reset: ['monitor', 'monitor'], handled: ['handled', 'monitor'], constraint: ['constraint', 'monitor'],
   integrity_exclusion: ['excluded', 'reset'], integrity_readmit: ['readmitted', 'source_switch'],
-  dead_reckoning_doubted: ['IMU doubted', 'reset'],
+  dead_reckoning_doubted: ['IMU doubted', 'reset'], calibration_ran_away: ['IMU doubted', 'reset'],
   calibration_started: ['calib.', 'calibration'], calibration_result: ['calib.', 'calibration'],
   fault_injected: ['fault', 'fault_injected'], fault_cleared: ['fault', 'fault_injected'],
   zenoh_link: ['zenoh', 'control'], initialised: ['init', 'info'], sample_rejected: ['rejected', 'info'],

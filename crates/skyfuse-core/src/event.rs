@@ -160,6 +160,15 @@ pub enum Event {
         reach_m: f64,
         test_ratio: f64,
     },
+    /// A flow's learnt `state` (its scale or heading error) moved by `moved` over
+    /// `window_s`, `test_ratio` times what the data could teach it: the filters allowed
+    /// for an accelerometer fault over the window (the IMU it is learnt against).
+    CalibrationRanAway {
+        state: &'static str,
+        moved: f64,
+        window_s: f64,
+        test_ratio: f64,
+    },
 }
 
 /// The three ways the pose is reset.
@@ -247,7 +256,7 @@ pub enum ConstraintChange {
 
 impl Event {
     /// Every kind, as `kind` names it (web/PROTOCOL.md lists these).
-    pub const KINDS: [&'static str; 24] = [
+    pub const KINDS: [&'static str; 25] = [
         "initialised",
         "origin_set",
         "reset",
@@ -272,6 +281,7 @@ impl Event {
         "integrity_exclusion",
         "integrity_readmit",
         "dead_reckoning_doubted",
+        "calibration_ran_away",
     ];
 
     pub fn kind(&self) -> &'static str {
@@ -298,6 +308,7 @@ impl Event {
             Event::IntegrityExclusion { .. } => "integrity_exclusion",
             Event::IntegrityReadmit { .. } => "integrity_readmit",
             Event::DeadReckoningDoubted { .. } => "dead_reckoning_doubted",
+            Event::CalibrationRanAway { .. } => "calibration_ran_away",
             Event::FaultInjected => "fault_injected",
             Event::FaultCleared => "fault_cleared",
         }
@@ -417,6 +428,12 @@ mod tests {
                 gap_s: 4.0,
                 reach_m: 8.0,
                 test_ratio: 0.4,
+            },
+            Event::CalibrationRanAway {
+                state: "scale",
+                moved: -0.2,
+                window_s: 1.0,
+                test_ratio: 3.1,
             },
             Event::Reset(Reset::Rejected {
                 reset_counter: 3,

@@ -92,8 +92,9 @@ pub const DEFAULT_AIDING_TIMEOUT_MS: f64 = 1000.0;
 /// the filter's own drift keeps its only source locked out for good.
 pub const DEFAULT_REJECT_RESET_S: f64 = 3.0;
 /// The accelerometer fault allowed for when a velocity comes back refused after a
-/// second or more of dead reckoning, m/s² (1σ; 0: never): as large as the biases the
-/// randomised flights draw, and the step of PX4's square flown with a shifted mount.
+/// second or more of dead reckoning, or a flow's learnt calibration runs away, m/s²
+/// (1σ; 0: never): as large as the biases the randomised flights draw, and the step of
+/// PX4's square flown with a shifted mount.
 pub const DEFAULT_DEAD_RECKONING_FAULT_MPS2: f64 = 1.0;
 /// After such a reset the pose is invalid for this long, and until the source is
 /// accepted again, s.

@@ -330,6 +330,15 @@ impl Ekf {
         }
     }
 
+    /// The index of `source`'s scale error (its heading error at the next), if it has
+    /// one.
+    pub fn scale_of(&self, source: &str) -> Option<usize> {
+        self.scales
+            .iter()
+            .find(|(s, _)| s == source)
+            .map(|&(_, i)| i)
+    }
+
     /// The index of `source`'s delay state, if it has one.
     pub fn delay_of(&self, source: &str) -> Option<usize> {
         self.delays

@@ -37,6 +37,17 @@ pub struct FlowState {
     pub noise: RateNoise,
     /// The last sample below `flow_min_quality` in the air (poor texture), µs.
     pub poor_t: Option<i64>,
+    /// The scale and heading errors where the current watch window started.
+    pub calibration_mark: Option<CalibrationMark>,
+}
+
+/// A flow's learnt scale and heading errors (their estimates and variances in the main
+/// filter) at a moment: see [`watch_calibration`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CalibrationMark {
+    pub t: i64,
+    pub x: [f64; 2],
+    pub var: [f64; 2],
 }
 
 impl Default for FlowState {
@@ -48,6 +59,7 @@ impl Default for FlowState {
             last_t: None,
             noise: RateNoise::default(),
             poor_t: None,
+            calibration_mark: None,
         }
     }
 }
@@ -635,6 +647,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, f: &OpticalFlow
         );
         learn_rate_noise(core, t, source, fused, configured);
     }
+    if imu_drives {
+        watch_calibration(core, ctx, t, source);
+    }
     // The module's ToF as height when no range finder is being fused.
     if let Some(tof) = &f.tof {
         if (tof.distance_m - height).abs() < 1e-9 && !core.range_recent(t, ctx) {
@@ -666,6 +681,113 @@ fn gyro_bias_tau_s(
     } else {
         f64::INFINITY
     })
+}
+
+/// How long a watch window of a flow's calibration lasts, µs.
+const CALIBRATION_WATCH_US: i64 = 1_000_000;
+/// How far, in σ of what the window's data taught, a learnt calibration may move.
+const CALIBRATION_RUNAWAY_SIGMAS: f64 = 5.0;
+/// ... and at least this far (scale, fraction; heading, rad) before it counts: below,
+/// the move is too small to matter whatever pushed it.
+const CALIBRATION_RUNAWAY_MIN: [f64; 2] = [0.03, 0.03];
+
+/// Checks of the flow's calibration against the IMU it is learnt from. The scale and
+/// heading errors are constants (a slow random walk) that the filter learns by holding
+/// the flow's velocity changes against the IMU's accelerations. A learnt constant's
+/// estimate moves over a window by what the data taught it, whose variance is what its
+/// own variance lost (plus its walk); one that moves far beyond that is being pushed
+/// by a model that no longer holds, and the IMU is the suspect: an accelerometer that
+/// stepped is read by a flow as a vehicle slower or faster than it says, and taken up
+/// by the scale (randomised hover, draw 220 with a 1 m/s² step: the scale from −2 % to
+/// −57 % in 5 s while its σ said 4 %, the estimate 10 m off with σ 1.4 m). The filters
+/// then allow for an accelerometer fault over the window and for the scale or heading
+/// to be what it moved to or where it was, and learn again.
+fn watch_calibration(core: &mut Core, ctx: &Ctx, t: i64, source: &str) {
+    let cfg = ctx.cfg;
+    let fault = cfg.dead_reckoning_fault_mps2;
+    let Some(bank) = core.ekf.as_ref().filter(|_| fault > 0.0) else {
+        return;
+    };
+    let e = bank.main();
+    let Some(i) = e.scale_of(source) else {
+        return;
+    };
+    let now = CalibrationMark {
+        t,
+        x: [e.x[i], e.x[i + 1]],
+        var: [e.p[(i, i)], e.p[(i + 1, i + 1)]],
+    };
+    let Some(st) = core.flow.get_mut(source) else {
+        return;
+    };
+    let Some(mark) = st.calibration_mark.filter(|m| t >= m.t) else {
+        st.calibration_mark = Some(now);
+        return;
+    };
+    if t - mark.t < CALIBRATION_WATCH_US {
+        return;
+    }
+    st.calibration_mark = Some(now);
+    let w = (t - mark.t) as f64 * 1e-6;
+    let walk = [cfg.flow_scale_rw, cfg.flow_heading_rw].map(|rw| rw * rw * w);
+    let Some((k, ratio)) = ran_away(&mark, &now, walk) else {
+        return;
+    };
+    let moved = [0, 1].map(|d| now.x[d] - mark.x[d]);
+    if let Some(bank) = core.ekf.as_mut() {
+        bank.each(|e| {
+            if let Some(j) = e.scale_of(source) {
+                for (d, m) in moved.iter().enumerate() {
+                    e.p[(j + d, j + d)] += m * m;
+                }
+            }
+            e.add_dead_reckoning_fault(&[0, 1], fault, w);
+        });
+    }
+    restart_calibration_watch(core, source);
+    let what = ["scale", "heading"][k];
+    let (moved_k, sigma) = (moved[k], (mark.var[k].sqrt(), now.var[k].sqrt()));
+    core.event(
+        t,
+        Some(source),
+        format!(
+            "{source}: its learnt {what} error moved {moved_k:+.3} in {w:.1} s, {ratio:.1} times what the data could teach (σ {:.3} → {:.3}): the IMU it is learnt against is doubted",
+            sigma.0, sigma.1
+        ),
+        Event::CalibrationRanAway {
+            state: what,
+            moved: moved_k,
+            window_s: w,
+            test_ratio: ratio,
+        },
+    );
+}
+
+/// Which of the calibration's two states moved beyond what the window's data could
+/// teach it (the variance it lost, plus its walk `walk`), and by how many times the
+/// allowance: the worst, or None. None too when a variance grew beyond its walk (a
+/// reset or a new filter widened it: the move is not the data's).
+fn ran_away(mark: &CalibrationMark, now: &CalibrationMark, walk: [f64; 2]) -> Option<(usize, f64)> {
+    let mut worst: Option<(usize, f64)> = None;
+    for k in 0..2 {
+        if now.var[k] > mark.var[k] + 2.0 * walk[k] {
+            return None;
+        }
+        let taught = (mark.var[k] - now.var[k]).max(0.0) + walk[k];
+        let allowed = (CALIBRATION_RUNAWAY_SIGMAS * taught.sqrt()).max(CALIBRATION_RUNAWAY_MIN[k]);
+        let ratio = (now.x[k] - mark.x[k]).abs() / allowed;
+        if ratio > 1.0 && worst.is_none_or(|(_, r)| ratio > r) {
+            worst = Some((k, ratio));
+        }
+    }
+    worst
+}
+
+/// The next flow sample starts a new watch window.
+fn restart_calibration_watch(core: &mut Core, source: &str) {
+    if let Some(st) = core.flow.get_mut(source) {
+        st.calibration_mark = None;
+    }
 }
 
 /// The flow sample of `t` was tested with rate-noise variance `fused` (`configured`
@@ -839,6 +961,35 @@ mod tests {
             }
         }
         sum / (n - n / 2) as f64
+    }
+
+    #[test]
+    fn a_calibration_moving_beyond_what_its_data_taught_has_run_away() {
+        let mark = |x: f64, sd: f64| CalibrationMark {
+            t: 0,
+            x: [x, 0.0],
+            var: [sd * sd, 0.01],
+        };
+        let walk = [1e-6, 1e-6];
+        // Learning: σ 0.10 → 0.05 allows moves of 5·0.087; 0.2 is one.
+        assert_eq!(ran_away(&mark(0.0, 0.1), &mark(0.2, 0.05), walk), None);
+        // Converged (σ 0.038 → 0.036, one 1 s window of draw 220): 0.12 is not.
+        let (k, ratio) = ran_away(&mark(-0.02, 0.038), &mark(-0.14, 0.036), walk).unwrap();
+        assert_eq!(k, 0);
+        assert!(ratio > 1.5 && ratio < 2.5, "{ratio}");
+        // A move below the least that counts, however sure the state: none.
+        assert_eq!(ran_away(&mark(0.0, 0.01), &mark(0.02, 0.01), walk), None);
+        // Widened in the window (a reset): its move is not the data's.
+        assert_eq!(ran_away(&mark(0.0, 0.01), &mark(0.5, 0.2), walk), None);
+        // The heading the same way.
+        let turned = CalibrationMark {
+            x: [0.0, 0.2],
+            ..mark(0.0, 0.01)
+        };
+        assert_eq!(
+            ran_away(&mark(0.0, 0.01), &turned, walk).map(|r| r.0),
+            Some(1)
+        );
     }
 
     #[test]
