@@ -230,7 +230,7 @@ impl Ekf {
 
     /// The index of `source`'s delay state, added (0, variance `var`) on first use.
     pub fn delay_state(&mut self, source: &str, var: f64) -> usize {
-        if let Some(&(_, i)) = self.delays.iter().find(|(s, _)| s == source) {
+        if let Some(i) = self.delay_of(source) {
             return i;
         }
         let n = self.n();
@@ -243,8 +243,8 @@ impl Ekf {
     /// Start (or restart) `source`'s alignment error ε: the error of the heading error
     /// estimate now, `ψ_a − ψ̂_a`, so 0 with ψ_a's variance and correlations.
     pub fn start_align_yaw(&mut self, source: &str) -> usize {
-        let idx = match self.align_yaws.iter().find(|(s, _)| s == source) {
-            Some(&(_, i)) => i,
+        let idx = match self.align_yaw_of(source) {
+            Some(i) => i,
             None => {
                 let n = self.n();
                 self.grow(1);
@@ -269,10 +269,7 @@ impl Ekf {
 
     /// The index of `source`'s alignment error, if it has one.
     pub fn align_yaw_of(&self, source: &str) -> Option<usize> {
-        self.align_yaws
-            .iter()
-            .find(|(s, _)| s == source)
-            .map(|&(_, i)| i)
+        index_of(&self.align_yaws, source)
     }
 
     /// Holds every delay state within ±`max_s` (EKF2's constrainStates for its biases),
@@ -333,18 +330,12 @@ impl Ekf {
     /// The index of `source`'s scale error (its heading error at the next), if it has
     /// one.
     pub fn scale_of(&self, source: &str) -> Option<usize> {
-        self.scales
-            .iter()
-            .find(|(s, _)| s == source)
-            .map(|&(_, i)| i)
+        index_of(&self.scales, source)
     }
 
     /// The index of `source`'s delay state, if it has one.
     pub fn delay_of(&self, source: &str) -> Option<usize> {
-        self.delays
-            .iter()
-            .find(|(s, _)| s == source)
-            .map(|&(_, i)| i)
+        index_of(&self.delays, source)
     }
 
     /// `extra` more states, zero, uncorrelated, variance zero until set.
@@ -776,7 +767,7 @@ impl Ekf {
     /// The index of `source`'s scale error (its heading error at the next), added
     /// (both 0, variances `scale_var` and `heading_var`, uncorrelated) on first use.
     pub fn scale_state(&mut self, source: &str, scale_var: f64, heading_var: f64) -> usize {
-        if let Some(&(_, i)) = self.scales.iter().find(|(s, _)| s == source) {
+        if let Some(i) = self.scale_of(source) {
             return i;
         }
         let n = self.n();
@@ -1263,6 +1254,11 @@ fn all_finite(v: &[f64]) -> bool {
         acc | ((x.to_bits() & EXPONENT) + EXPONENT_ONE)
     });
     carried >> 63 == 0
+}
+
+/// The state index a per-source list gives `source`, if it has one.
+fn index_of(list: &[(String, usize)], source: &str) -> Option<usize> {
+    list.iter().find(|(s, _)| s == source).map(|&(_, i)| i)
 }
 
 #[cfg(test)]
