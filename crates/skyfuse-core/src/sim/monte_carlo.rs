@@ -474,16 +474,10 @@ mod tests {
         let mut stepped = 0;
         for i in 0..200 {
             let (plain, more) = (draw(1, i), draw_stressed(1, i, stress));
-            let steps: Vec<&Fault> = more
+            let (steps, rest): (Vec<&Fault>, Vec<&Fault>) = more
                 .faults
                 .iter()
-                .filter(|f| f.kind == FaultKind::AccelOffset)
-                .collect();
-            let rest: Vec<&Fault> = more
-                .faults
-                .iter()
-                .filter(|f| f.kind != FaultKind::AccelOffset)
-                .collect();
+                .partition(|f| f.kind == FaultKind::AccelOffset);
             assert_eq!(rest, plain.faults.iter().collect::<Vec<_>>(), "draw {i}");
             assert_eq!(more.plan, plain.plan, "draw {i}");
             assert_eq!(more.streams, plain.streams, "draw {i}");
