@@ -211,6 +211,7 @@ impl<'a> PoseMessage<'a> {
                 vertical_m: decimals(p.vertical_m, METRE_DECIMALS),
                 horizontal_alert_m: decimals(p.horizontal_alert_m, METRE_DECIMALS),
                 vertical_alert_m: decimals(p.vertical_alert_m, METRE_DECIMALS),
+                anchored_us: p.anchored_us,
             },
             ..self
         }
@@ -609,6 +610,7 @@ mod tests {
                 vertical_m: 1.318_851_641_771_287_4,
                 horizontal_alert_m: 50.0,
                 vertical_alert_m: 20.0,
+                anchored_us: None,
             },
         };
         let bytes = PoseMessage::of(&p, "map").to_bytes();

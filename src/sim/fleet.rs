@@ -108,6 +108,7 @@ impl Vehicle {
                 vertical_m: 2.5,
                 horizontal_alert_m: 10.0,
                 vertical_alert_m: 15.0,
+                anchored_us: None,
             },
         }
         .rounded();

@@ -138,6 +138,10 @@ function renderEstimator(st) {
     if (pr) {
       const over = pr.horizontal_m > pr.horizontal_alert_m || pr.vertical_m > pr.vertical_alert_m;
       rows.push(['protection', `H ${fmt(pr.horizontal_m, 1)} / V ${fmt(pr.vertical_m, 1)} m (limits ${fmt(pr.horizontal_alert_m, 0)} / ${fmt(pr.vertical_alert_m, 0)})`, over ? 'full bad' : 'full']);
+      // Relative navigation: the horizontal bound is from the last anchor, not take-off.
+      if (pr.anchored_us != null && e.time_us != null) {
+        rows.push(['anchored', `${fmt((e.time_us - pr.anchored_us) / 1e6, 0)} s ago (H relative to it)`, 'full']);
+      }
     }
     const excluded = e.integrity && Array.isArray(e.integrity.excluded) ? e.integrity.excluded : [];
     if (excluded.length) rows.push(['excluded', excluded.join(', '), 'full bad']);

@@ -171,7 +171,7 @@ pub enum Event {
     },
 }
 
-/// The three ways the pose is reset.
+/// The ways the pose is reset.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(untagged)]
 pub enum Reset {
@@ -193,6 +193,11 @@ pub enum Reset {
         rejected_s: f64,
         jump_m: f64,
     },
+    /// A frame of its own re-anchored where the estimate is (it does not move): the
+    /// position is relative navigation from here, and the horizontal bound of
+    /// `hpl_m` it had reached since the last anchor starts again (see
+    /// `integrity::DEFAULT_REANCHOR_FRACTION`).
+    Anchor { reset_counter: u8, hpl_m: f64 },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -340,6 +345,10 @@ mod tests {
                 reset_counter: 2,
             }),
             Event::Reset(Reset::Restart { reset_counter: 3 }),
+            Event::Reset(Reset::Anchor {
+                reset_counter: 4,
+                hpl_m: 25.3,
+            }),
             Event::MonitorReset(MonitorReset {
                 monitor: "gps_imu",
                 reason: "far".into(),

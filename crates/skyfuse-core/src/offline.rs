@@ -76,6 +76,14 @@ pub struct Recorder {
     pub fused_all_std: Vec<Vector3<f64>>,
     /// The protection levels each was sent with, horizontal and vertical, m.
     pub fused_all_pl: Vec<[f64; 2]>,
+    /// Where a frame of its own was re-anchored: (t, the position and orientation of
+    /// the first pose sent after it, valid or not). The horizontal bound of later poses
+    /// is relative to it, and so is their error (see `Protection::anchored_us`).
+    pub anchors: Vec<(f64, Vector3<f64>, UnitQuaternion<f64>)>,
+    /// Per recorded pose, the anchor its horizontal bound is from: 0 the frame's
+    /// origin, k the k-th of `anchors`.
+    pub fused_all_anchor: Vec<usize>,
+    last_anchor_us: Option<i64>,
     /// The frame the reference is given in, where it is geodetic (the simulator's
     /// home): a pose with a GNSS origin is put into it through that origin, so its
     /// error is the geodetic one (the origin is itself a fix, with that fix's error).
@@ -286,6 +294,13 @@ impl Recorder {
             .push(pose.position_cov.diagonal().map(|v| v.max(0.0).sqrt()));
         self.fused_all_pl
             .push([pose.protection.horizontal_m, pose.protection.vertical_m]);
+        let anchor = pose.protection.anchored_us;
+        if anchor.is_some() && anchor != self.last_anchor_us {
+            self.anchors.push((t, pose.position, pose.orientation));
+        }
+        self.last_anchor_us = anchor;
+        self.fused_all_anchor
+            .push(anchor.map_or(0, |_| self.anchors.len()));
         if pose.valid {
             let before = self.fused.t.len();
             push(&mut self.fused, t, pose.position, pose.orientation);
@@ -437,6 +452,34 @@ impl Consistency {
     }
 }
 
+/// The frame registration that puts the estimate's pose `est` onto the reference's
+/// `reference`: both are level (z up, gravity), so a translation and, for a frame of
+/// its own, a heading.
+fn register(
+    est: &(Vector3<f64>, UnitQuaternion<f64>),
+    reference: &(Vector3<f64>, UnitQuaternion<f64>),
+    registration: Option<Registration>,
+) -> crate::eval::Sim3 {
+    let pose = |p: Vector3<f64>, q: UnitQuaternion<f64>| {
+        nalgebra::Isometry3::from_parts(nalgebra::Translation3::from(p), q)
+    };
+    let to_ref = pose(reference.0, reference.1) * pose(est.0, est.1).inverse();
+    // Only the heading: the whole rotation of one instant would carry the two
+    // attitudes' roll and pitch difference there (1° is 1.7 m at 100 m) into every
+    // later pose as an error.
+    let m = to_ref.rotation.to_rotation_matrix();
+    let yaw = match registration {
+        Some(Registration::Heading) => m[(1, 0)].atan2(m[(0, 0)]),
+        _ => 0.0,
+    };
+    let rotation = *nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), yaw).matrix();
+    crate::eval::Sim3 {
+        rotation,
+        translation: reference.0 - rotation * est.0,
+        scale: 1.0,
+    }
+}
+
 /// Consistency of `estimate` (with `cov` per pose) against `reference` (matched by
 /// time within `max_diff_s`); `align`: register the frames at the first matched pose
 /// first (a reference in its own frame).
@@ -450,12 +493,19 @@ enum Registration {
     Heading,
 }
 
+/// Where a frame of its own was re-anchored (see `Recorder::anchors`): the time, the
+/// estimate's pose there, and the reference's where it has one then.
+type Anchor = (f64, PoseAt, Option<PoseAt>);
+type PoseAt = (Vector3<f64>, UnitQuaternion<f64>);
+
+#[allow(clippy::too_many_arguments)]
 fn consistency(
     reference: &Trajectory,
     reference_cov: Option<&[Matrix3<f64>]>,
     estimate: &Trajectory,
     cov: &[Matrix3<f64>],
     pl: &[Protection],
+    anchors: &[Anchor],
     max_diff_s: f64,
     registration: Option<Registration>,
 ) -> Option<Consistency> {
@@ -465,25 +515,8 @@ fn consistency(
         return None;
     }
     let (e, r) = (estimate.select(&ie), reference.select(&ir));
-    let rot = if align {
-        let pose = |p: Vector3<f64>, q: UnitQuaternion<f64>| {
-            nalgebra::Isometry3::from_parts(nalgebra::Translation3::from(p), q)
-        };
-        let to_ref = pose(r.p[0], r.q[0]) * pose(e.p[0], e.q[0]).inverse();
-        // Both frames are level (z up, gravity): only the heading is registered. The
-        // whole rotation of one instant would carry the two attitudes' roll and pitch
-        // difference there (1° is 1.7 m at 100 m) into every later pose as an error.
-        let m = to_ref.rotation.to_rotation_matrix();
-        let yaw = match registration {
-            Some(Registration::Heading) => m[(1, 0)].atan2(m[(0, 0)]),
-            _ => 0.0,
-        };
-        let rotation = *nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), yaw).matrix();
-        crate::eval::Sim3 {
-            rotation,
-            translation: r.p[0] - rotation * e.p[0],
-            scale: 1.0,
-        }
+    let first = if align {
+        register(&(e.p[0], e.q[0]), &(r.p[0], r.q[0]), registration)
     } else {
         crate::eval::Sim3 {
             rotation: Matrix3::identity(),
@@ -491,6 +524,7 @@ fn consistency(
             scale: 1.0,
         }
     };
+    let mut rot = first;
     let mut within = [0usize; 3];
     let (mut beyond, mut worst, mut worst_t, mut worst_axis, mut nees) = (0, 0.0f64, 0.0, 0, 0.0);
     let mut nees_axis = [0.0; 3];
@@ -498,9 +532,53 @@ fn consistency(
     // Registered at the first matched pose, every later pose inherits that pose's own
     // error: its covariance counts too (the correlation between the two, which would
     // lessen it, is not known here).
-    let registration = if align { cov[ie[0]] } else { Matrix3::zeros() };
+    let registration_cov = if align { cov[ie[0]] } else { Matrix3::zeros() };
+    // The anchor in force (see `Anchor`), by its index: the estimate registered to the
+    // reference there, horizontally (the height keeps the first pose's registration).
+    let mut anchored: Option<usize> = None;
     for (k, &i) in ie.iter().enumerate() {
+        let anchor = pl
+            .get(i)
+            .and_then(|p| p.anchored_us)
+            .and_then(|_| anchors.iter().rposition(|a| a.0 <= e.t[k]));
+        if anchor != anchored {
+            rot = match anchor {
+                Some(a) => {
+                    // Where the reference was at the anchor; else (none then) at this
+                    // pose, the first valid one after it.
+                    let (est, reference) = match anchors[a].2 {
+                        Some(reference) => (anchors[a].1, reference),
+                        None => ((e.p[k], e.q[k]), (r.p[k], r.q[k])),
+                    };
+                    let mut at = register(
+                        &est,
+                        &reference,
+                        registration.or(Some(Registration::Translation)),
+                    );
+                    if !align {
+                        at.rotation = Matrix3::identity();
+                        at.translation = reference.0 - est.0;
+                    }
+                    at.translation.z = first.translation.z;
+                    at
+                }
+                None => first,
+            };
+            anchored = anchor;
+        }
         let err = rot.apply(&e.p[k]) - r.p[k];
+        let registration = if anchored.is_some() {
+            let mut r = registration_cov;
+            for a in 0..2 {
+                for b in 0..3 {
+                    r[(a, b)] = 0.0;
+                    r[(b, a)] = 0.0;
+                }
+            }
+            r
+        } else {
+            registration_cov
+        };
         // The reference's own uncertainty, in its frame, where it has one (GNSS, an
         // odometry's covariance): the difference of two estimates has both.
         let own = reference_cov
@@ -513,8 +591,9 @@ fn consistency(
         if let Some(p) = pl.get(i) {
             let e_own = rot.rotation.transpose() * err;
             let reg = pl.get(ie[0]).filter(|_| align);
+            let reg_h = reg.filter(|_| anchored.is_none());
             let (h, v) = (
-                p.horizontal_m + reg.map_or(0.0, |r| r.horizontal_m),
+                p.horizontal_m + reg_h.map_or(0.0, |r| r.horizontal_m),
                 p.vertical_m + reg.map_or(0.0, |r| r.vertical_m),
             );
             let ratio = (e_own.xy().norm() / h.max(1e-9)).max(e_own.z.abs() / v.max(1e-9));
@@ -627,14 +706,15 @@ fn tum(name: &str, tr: &Trajectory) -> Result<String, OfflineError> {
     })
 }
 
-/// `t sigma_e sigma_n sigma_u valid hpl vpl` per recorded pose: the uncertainty and
-/// the protection levels each pose was sent with beside `fused_all.tum`, to plot
-/// against the error.
+/// `t sigma_e sigma_n sigma_u valid hpl vpl anchor` per recorded pose: the uncertainty
+/// and the protection levels each pose was sent with beside `fused_all.tum`, to plot
+/// against the error, and the anchor its horizontal bound is from (0: the origin; k:
+/// the k-th re-anchoring, at the first pose that has k).
 fn sigma_text(rec: &Recorder) -> String {
     let mut out = Vec::with_capacity(rec.validity.len() * 64);
-    out.extend_from_slice(b"# t sigma_e sigma_n sigma_u valid hpl vpl\n");
+    out.extend_from_slice(b"# t sigma_e sigma_n sigma_u valid hpl vpl anchor\n");
     let poses = rec.validity.iter().zip(&rec.fused_all_std);
-    for (((t, valid), s), pl) in poses.zip(&rec.fused_all_pl) {
+    for ((((t, valid), s), pl), anchor) in poses.zip(&rec.fused_all_pl).zip(&rec.fused_all_anchor) {
         crate::eval::push_fixed(&mut out, *t, 6);
         for v in s.iter() {
             out.push(b' ');
@@ -645,7 +725,7 @@ fn sigma_text(rec: &Recorder) -> String {
             out.push(b' ');
             crate::eval::push_fixed(&mut out, *v, 3);
         }
-        out.push(b'\n');
+        out.extend_from_slice(format!(" {anchor}\n").as_bytes());
     }
     String::from_utf8(out).unwrap_or_default()
 }
@@ -715,6 +795,17 @@ fn windowed(tr: &Trajectory, window: Option<(f64, f64)>) -> Trajectory {
 }
 
 /// The truth at each of `times`.
+/// The reference's pose nearest `t` within `max_diff_s`, if any.
+fn reference_at(r: &Trajectory, t: f64, max_diff_s: f64) -> Option<PoseAt> {
+    let i = r.t.partition_point(|&x| x < t);
+    [i.checked_sub(1), Some(i)]
+        .into_iter()
+        .flatten()
+        .filter(|&j| j < r.t.len() && (r.t[j] - t).abs() <= max_diff_s)
+        .min_by(|&a, &b| (r.t[a] - t).abs().total_cmp(&(r.t[b] - t).abs()))
+        .map(|j| (r.p[j], r.q[j]))
+}
+
 fn truth_at(
     truth: &dyn Fn(f64) -> (Vector3<f64>, UnitQuaternion<f64>),
     times: &[f64],
@@ -867,12 +958,18 @@ fn score(
             let t = truth_at(*truth, &rec.fused.t);
             let register =
                 matches!(reference, Reference::TruthInOwnFrame(_)).then_some(Registration::Heading);
+            let anchors: Vec<Anchor> = rec
+                .anchors
+                .iter()
+                .map(|&(ta, p, q)| (ta, (p, q), Some(truth(ta))))
+                .collect();
             consistency(
                 &t,
                 None,
                 &rec.fused,
                 &rec.fused_cov,
                 &rec.fused_pl,
+                &anchors,
                 1e-9,
                 register,
             )
@@ -895,12 +992,18 @@ fn score(
                 } else {
                     Registration::Heading
                 };
+            let anchors: Vec<Anchor> = rec
+                .anchors
+                .iter()
+                .map(|&(ta, p, q)| (ta, (p, q), reference_at(r, ta, *max_diff_s)))
+                .collect();
             consistency(
                 r,
                 own,
                 &rec.fused,
                 &rec.fused_cov,
                 &rec.fused_pl,
+                &anchors,
                 *max_diff_s,
                 Some(registration),
             )
@@ -1745,7 +1848,7 @@ mod reference_tests {
         }
         let cov = vec![Matrix3::identity() * 0.01; est.t.len()];
         let at = |r: Registration| {
-            consistency(&reference, None, &est, &cov, &[], 1e-6, Some(r))
+            consistency(&reference, None, &est, &cov, &[], &[], 1e-6, Some(r))
                 .map(|c| (c.beyond_5_sigma, c.worst_ratio))
                 .expect("scored")
         };
@@ -1761,6 +1864,7 @@ mod reference_tests {
             &est,
             &cov,
             &[],
+            &[],
             1e-6,
             Some(Registration::Heading),
         )
@@ -1770,5 +1874,47 @@ mod reference_tests {
             "{:?}",
             turned.within_3_sigma
         );
+    }
+
+    /// An estimate drifting 0.1 m/s east, re-anchored every 5 s with a bound of 1 m:
+    /// from take-off it is 3 m off at 30 s, beyond its bound; against each anchor it
+    /// is at most 0.5 m off, inside it. The truth is registered where the estimate was
+    /// at each anchor, and only the horizontal: the height keeps the first pose's.
+    #[test]
+    fn a_re_anchored_estimate_is_judged_from_its_anchor() {
+        let (mut reference, mut est) = (Trajectory::default(), Trajectory::default());
+        let mut pl = vec![];
+        let mut anchors = vec![];
+        for k in 0..=300 {
+            let t = k as f64 * 0.1;
+            let p = Vector3::new(t, 0.5 * t, 2.0);
+            push(&mut reference, t, p, UnitQuaternion::identity());
+            let e = p + Vector3::new(0.1 * t, 0.0, 0.05);
+            push(&mut est, t, e, UnitQuaternion::identity());
+            let anchor = (k / 50) as f64 * 5.0;
+            if k % 50 == 0 && k > 0 {
+                let q = UnitQuaternion::identity();
+                anchors.push((t, (e, q), Some((p, q))));
+            }
+            pl.push(Protection {
+                horizontal_m: 1.0,
+                vertical_m: 1.0,
+                horizontal_alert_m: 50.0,
+                vertical_alert_m: 20.0,
+                anchored_us: (k >= 50).then_some((anchor * 1e6) as i64),
+            });
+        }
+        let cov = vec![Matrix3::identity() * 0.04; est.t.len()];
+        let judged = |anchors: &[Anchor]| {
+            consistency(&reference, None, &est, &cov, &pl, anchors, 1e-6, None).expect("scored")
+        };
+        let from_take_off = judged(&[]);
+        assert!(from_take_off.integrity_failures > 100, "{from_take_off:?}");
+        let anchored = judged(&anchors);
+        assert_eq!(anchored.integrity_failures, 0, "{anchored:?}");
+        assert!(anchored.worst_pl_ratio > 0.45, "{anchored:?}");
+        // The σ too is judged from the anchor (0.49 m at most, σ 0.2 m); the height's
+        // 5 cm stays.
+        assert!(anchored.within_3_sigma == [1.0; 3] && anchored.worst_ratio < 3.0);
     }
 }

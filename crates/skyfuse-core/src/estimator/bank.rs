@@ -212,6 +212,23 @@ impl Bank {
         }
     }
 
+    /// The frame re-anchored at `at` (E, N) and the main filter's heading (see
+    /// [`Ekf::anchor_frame`]) at `t`: the sub-filters start again from the main one
+    /// (their headings apart, with the heading's uncertainty gone, would part them
+    /// with nothing to say why), the set-aside solutions keep theirs and part as they
+    /// do, in the bound.
+    pub fn anchor(&mut self, at: [f64; 2], t: i64) {
+        self.main.anchor_frame(at);
+        for s in &mut self.subs {
+            s.ekf = self.main.clone();
+            s.since = t;
+            s.took_refused = false;
+        }
+        for s in &mut self.shadows {
+            s.ekf.anchor_frame(at);
+        }
+    }
+
     /// Drop the sub-filter without `source`.
     pub fn remove_sub(&mut self, source: &str) {
         self.subs.retain(|s| s.without != source);

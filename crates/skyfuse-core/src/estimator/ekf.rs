@@ -1030,6 +1030,49 @@ impl Ekf {
         self.p[(z, z)] + self.p[(t, t)] - 2.0 * self.p[(z, t)]
     }
 
+    /// The frame re-anchored at `at` (E, N) and at the heading the filter has now: the
+    /// position is put there, and its horizontal error and the heading's are nil from
+    /// here by definition of the frame (a change of variables, not a measurement: the
+    /// frame moves by the position's error and turns about it by the heading's). The
+    /// velocity, kept in the turned axes, and every odometry alignment made in them
+    /// turn with it (as [`Self::add_heading_uncertainty`] turns them the other way);
+    /// the odometry offsets keep what their sources measure (position + offset), and
+    /// take the position's move and error. The other states keep their uncertainty.
+    pub fn anchor_frame(&mut self, at: [f64; 2]) {
+        let n = self.n();
+        let v = self.vel();
+        // Heading: ε' = ε − j·ε_ψ, j the direction a turn of the frame moves the errors.
+        let mut j = DVector::zeros(n);
+        j[IDX_YAW] = 1.0;
+        j[IDX_V] = -v.y;
+        j[IDX_V + 1] = v.x;
+        for &(_, i) in &self.align_yaws {
+            j[i] = 1.0;
+        }
+        let mut t: DMatrix<f64> = DMatrix::identity(n, n);
+        for i in 0..n {
+            t[(i, IDX_YAW)] -= j[i];
+        }
+        // Position: ε_p' = 0, each offset's error takes the position's.
+        for (a, &to) in at.iter().enumerate() {
+            let i = IDX_P + a;
+            let d = to - self.x[i];
+            self.x[i] = to;
+            for &(_, idx) in &self.blocks {
+                self.x[idx + a] -= d;
+                let row = t.row(i).into_owned();
+                let mut r = t.row_mut(idx + a);
+                r += row;
+            }
+            t.row_mut(i).fill(0.0);
+        }
+        self.p = &t * &self.p * t.transpose();
+        for i in [IDX_P, IDX_P + 1, IDX_YAW] {
+            self.p[(i, i)] = VAR_FLOOR;
+        }
+        self.symmetrise();
+    }
+
     /// Shift the position (origin reset); the covariance is unchanged.
     pub fn shift_position(&mut self, d: Vector3<f64>) {
         let p = self.pos() + d;
@@ -1515,6 +1558,53 @@ mod tests {
         ekf.p = p.clone();
         ekf.blocks.push(("vo".into(), CORE_STATES));
         ekf
+    }
+
+    /// Re-anchored, the horizontal position is where it was put and the heading where
+    /// the filter had it, both with no error, and nothing else changes its
+    /// uncertainty: the velocity keeps its own less the frame's turn, the height its
+    /// own, and an odometry keeps what it measures (position + offset), estimate and
+    /// variance alike.
+    #[test]
+    fn an_anchor_clears_the_horizontal_position_and_the_heading() {
+        let n = CORE_STATES + 3;
+        let x = DVector::from_fn(n, |i, _| 0.1 * i as f64);
+        // A full covariance: every state correlated with the position and the heading.
+        let a = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 * 0.05);
+        let p = &a * a.transpose() + DMatrix::identity(n, n);
+        let mut ekf = with_odometry_block(x, &p);
+        let before = ekf.clone();
+        let var = |e: &Ekf, w: &DVector<f64>| (w.transpose() * &e.p * w)[(0, 0)];
+        let unit = |i: usize| DVector::from_fn(n, |k, _| f64::from(u8::from(k == i)));
+        // What the anchor keeps: position + offset, and the velocity less the turn.
+        let kept: Vec<DVector<f64>> = (0..2)
+            .map(|k| unit(IDX_P + k) + unit(CORE_STATES + k))
+            .chain((0..2).map(|k| {
+                let turn = if k == 0 {
+                    -before.vel().y
+                } else {
+                    before.vel().x
+                };
+                unit(IDX_V + k) - unit(IDX_YAW) * turn
+            }))
+            .chain([IDX_P + 2, IDX_V + 2].map(unit))
+            .collect();
+        ekf.anchor_frame([3.0, -2.0]);
+        assert_eq!((ekf.x[IDX_P], ekf.x[IDX_P + 1]), (3.0, -2.0));
+        assert_eq!(ekf.x[IDX_YAW], before.x[IDX_YAW]);
+        for i in [IDX_P, IDX_P + 1, IDX_YAW] {
+            assert!(ekf.p[(i, i)] <= VAR_FLOOR);
+            for j in (0..n).filter(|&j| j != i) {
+                assert_eq!(ekf.p[(i, j)], 0.0, "states {i}, {j}");
+            }
+        }
+        for k in 0..2 {
+            let sum = |e: &Ekf| e.x[IDX_P + k] + e.x[CORE_STATES + k];
+            assert!((sum(&ekf) - sum(&before)).abs() < 1e-12);
+        }
+        for w in &kept {
+            assert!((var(&ekf, w) - var(&before, w)).abs() < 1e-9, "{w}");
+        }
     }
 
     /// A flow's compensation gyro bias error fades with its correlation time where the

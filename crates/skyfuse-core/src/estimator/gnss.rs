@@ -124,6 +124,9 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
                 None => at_fix,
             };
             core.gnss.origin = Some(origin);
+            // Where the vehicle is on Earth from here: no anchor of relative
+            // navigation (see `integrity::DEFAULT_REANCHOR_FRACTION`) bounds it.
+            core.integrity.anchored = None;
             core.event(
                 t,
                 Some(source),

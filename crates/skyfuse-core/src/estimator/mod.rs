@@ -179,6 +179,12 @@ pub struct Estimator {
     /// and moved into its samples' times, µs (see [`Self::adopt_delays`]), and the
     /// newest time given to one of its samples.
     delay_shift: SourceMap<(i64, i64)>,
+    /// Where each anchor of relative navigation put the frame, as first made: (filter
+    /// time, E, N). The poses sent since are in that frame, so a re-run of the history
+    /// (a late sample) that anchors again puts it at the same place, not where the
+    /// re-run has the vehicle (randomised draw 134: re-run four times over a flow back
+    /// from a long gap, the anchor moved 0.8 m under poses sent with σ 1 cm).
+    anchors: Vec<(i64, [f64; 2])>,
 }
 
 /// An estimated delay is moved into the source's sample times once it is this large,
@@ -230,6 +236,7 @@ impl Estimator {
             imu_down: imu::DownSampler::default(),
             imu_passed: Vec::new(),
             delay_shift: SourceMap::new(),
+            anchors: Vec::new(),
         }
     }
 
@@ -511,11 +518,6 @@ impl Estimator {
     /// Fuse the waiting samples up to time `limit`, and at least up to `through`.
     fn run_to(&mut self, limit: i64, through: Option<&Key>) -> Vec<EstimatorEvent> {
         let mut out = vec![];
-        let ctx = Ctx {
-            cfg: &self.cfg,
-            usable: &self.usable,
-            gates: self.gates,
-        };
         while let Some(e) = self.log.get(self.fused) {
             if e.key.t > limit && through.is_none_or(|k| e.key > *k) {
                 break;
@@ -527,8 +529,20 @@ impl Estimator {
             if snap {
                 self.snaps.push_back((e.key.clone(), self.core.clone()));
             }
+            let ctx = Ctx {
+                cfg: &self.cfg,
+                usable: &self.usable,
+                gates: self.gates,
+                anchors: &self.anchors,
+            };
             self.core
                 .process_entry(e.key.t, &e.key.source, &e.data, e.usable, &ctx);
+            if let Some((k, t, at)) = self.core.integrity.last_anchor {
+                if self.anchors.get(k).map(|a| a.1) != Some(at) {
+                    self.anchors.truncate(k);
+                    self.anchors.push((t, at));
+                }
+            }
             for ev in self.core.events.drain(..) {
                 let sig = (ev.time_us, ev.kind(), ev.source.clone(), ev.message.clone());
                 if self.emitted.insert(sig) {
@@ -637,7 +651,13 @@ impl Estimator {
                     position_cov[(a, a)] += v;
                 }
             }
-            (present, now.p, now.v, position_cov, e.cov3(IDX_V))
+            // Brought to the present on the velocity: its uncertainty over the span
+            // (the horizon's delay, a few hundred ms) is the position's too, which
+            // shows where the position's own is nil (a frame just re-anchored).
+            let ahead = (present - t).max(0) as f64 * 1e-6;
+            let velocity_cov = e.cov3(IDX_V);
+            position_cov += velocity_cov * (ahead * ahead);
+            (present, now.p, now.v, position_cov, velocity_cov)
         };
         let mut invalid_reason = self.invalid_reason();
         let finite = position
@@ -649,6 +669,10 @@ impl Estimator {
             && orientation.coords.iter().all(|v| v.is_finite());
         if !finite && invalid_reason.is_none() {
             invalid_reason = Some("non-finite value in the estimate".into());
+        }
+        let protection = integrity::protection_at(c, &self.cfg.integrity, time_us, &velocity_cov);
+        if invalid_reason.is_none() && !protection.within_alert_limits() {
+            invalid_reason = Some(self.invalid_texts.get(state::Invalid::Protection));
         }
         Some(FusedPose {
             time_us,
@@ -667,7 +691,7 @@ impl Estimator {
                 .gnss
                 .origin
                 .map(|o| (o.origin_lat_deg, o.origin_lon_deg, o.origin_alt_m)),
-            protection: integrity::protection(c, &self.cfg.integrity),
+            protection,
         })
     }
 
@@ -726,6 +750,12 @@ impl Estimator {
         }
         c.wrls.shift(d);
         c.monitors.shift(d);
+        for (_, at) in self.anchors.iter_mut() {
+            *at = [at[0] + d.x, at[1] + d.y];
+        }
+        if let Some((_, _, at)) = c.integrity.last_anchor.as_mut() {
+            *at = [at[0] + d.x, at[1] + d.y];
+        }
         for st in c.odom.values_mut() {
             if let Some(a) = st.align.as_mut() {
                 a.trans += d;

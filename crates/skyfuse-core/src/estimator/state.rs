@@ -48,6 +48,9 @@ pub(crate) struct Ctx<'a> {
     pub cfg: &'a EstimatorConfig,
     pub usable: &'a SourceMap<(bool, String)>,
     pub gates: [f64; 7],
+    /// Where each anchor of relative navigation put the frame, in order: (filter time,
+    /// E, N) (see `integrity::reanchor`).
+    pub anchors: &'a [(i64, [f64; 2])],
 }
 
 impl Ctx<'_> {
@@ -1385,7 +1388,7 @@ impl Core {
             return Some(Invalid::Uncertain);
         }
         let pl = integrity::protection(self, &cfg.integrity);
-        if !(pl.horizontal_m <= pl.horizontal_alert_m && pl.vertical_m <= pl.vertical_alert_m) {
+        if !pl.within_alert_limits() {
             return Some(Invalid::Protection);
         }
         None

@@ -63,6 +63,17 @@ pub struct Protection {
     pub vertical_m: f64,
     pub horizontal_alert_m: f64,
     pub vertical_alert_m: f64,
+    /// In a frame of its own re-anchored (relative navigation), when the anchor was
+    /// set, µs (host clock): the horizontal bound is on the position relative to where
+    /// the estimate had the vehicle then. None: relative to the frame's origin.
+    pub anchored_us: Option<i64>,
+}
+
+impl Protection {
+    /// Both levels under their alert limits (what "valid" requires of them).
+    pub fn within_alert_limits(&self) -> bool {
+        self.horizontal_m <= self.horizontal_alert_m && self.vertical_m <= self.vertical_alert_m
+    }
 }
 
 /// The estimator's debug series: the seed's rqt_plot topics (named as the seed names
