@@ -533,6 +533,9 @@ fn consistency(
     // error: its covariance counts too (the correlation between the two, which would
     // lessen it, is not known here).
     let registration_cov = if align { cov[ie[0]] } else { Matrix3::zeros() };
+    // From an anchor, the height's part only: the horizontal error there is nil.
+    let mut vertical_registration_cov = Matrix3::zeros();
+    vertical_registration_cov[(2, 2)] = registration_cov[(2, 2)];
     // The anchor in force (see `Anchor`), by its index: the estimate registered to the
     // reference there, horizontally (the height keeps the first pose's registration).
     let mut anchored: Option<usize> = None;
@@ -568,14 +571,7 @@ fn consistency(
         }
         let err = rot.apply(&e.p[k]) - r.p[k];
         let registration = if anchored.is_some() {
-            let mut r = registration_cov;
-            for a in 0..2 {
-                for b in 0..3 {
-                    r[(a, b)] = 0.0;
-                    r[(b, a)] = 0.0;
-                }
-            }
-            r
+            vertical_registration_cov
         } else {
             registration_cov
         };

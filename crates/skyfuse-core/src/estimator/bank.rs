@@ -38,6 +38,15 @@ pub struct Sub {
     pub took_refused: bool,
 }
 
+impl Sub {
+    /// Start again from the main filter at `t`.
+    fn restart(&mut self, main: &Ekf, t: i64) {
+        self.ekf = main.clone();
+        self.since = t;
+        self.took_refused = false;
+    }
+}
+
 /// The solution an exclusion set aside: the filter that kept the excluded source, fed
 /// everything, the excluded source included, while it stays out. The test that
 /// excluded it said only that the two solutions departed beyond their threshold, not
@@ -206,9 +215,7 @@ impl Bank {
     /// Start the sub-filter without `source` again from the main filter at `t`.
     pub fn restart_sub(&mut self, source: &str, t: i64) {
         if let Some(s) = self.subs.iter_mut().find(|s| s.without == source) {
-            s.ekf = self.main.clone();
-            s.since = t;
-            s.took_refused = false;
+            s.restart(&self.main, t);
         }
     }
 
@@ -220,9 +227,7 @@ impl Bank {
     pub fn anchor(&mut self, at: [f64; 2], t: i64) {
         self.main.anchor_frame(at);
         for s in &mut self.subs {
-            s.ekf = self.main.clone();
-            s.since = t;
-            s.took_refused = false;
+            s.restart(&self.main, t);
         }
         for s in &mut self.shadows {
             s.ekf.anchor_frame(at);
