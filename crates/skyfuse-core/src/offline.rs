@@ -7,7 +7,7 @@
 //! files (no wall-clock time, no hash-map ordering, fixed number formatting).
 
 use crate::estimator::{
-    DebugTopic, Estimator, EstimatorConfig, EstimatorEvent, Event, Mode, Protection,
+    DebugTopic, Estimator, EstimatorConfig, EstimatorEvent, Event, FusedPose, Mode, Protection,
 };
 use crate::eval::{evo_ape, ApeOptions, ApeStats, Trajectory};
 use crate::fusion::{Fusion, InputList, InputSpec};
@@ -79,7 +79,7 @@ pub struct Recorder {
     /// Where a frame of its own was re-anchored: (t, the position and orientation of
     /// the first pose sent after it, valid or not). The horizontal bound of later poses
     /// is relative to it, and so is their error (see `Protection::anchored_us`).
-    pub anchors: Vec<(f64, Vector3<f64>, UnitQuaternion<f64>)>,
+    pub anchors: Vec<(f64, FusedPose)>,
     /// Per recorded pose, the anchor its horizontal bound is from: 0 the frame's
     /// origin, k the k-th of `anchors`.
     pub fused_all_anchor: Vec<usize>,
@@ -296,7 +296,7 @@ impl Recorder {
             .push([pose.protection.horizontal_m, pose.protection.vertical_m]);
         let anchor = pose.protection.anchored_us;
         if anchor.is_some() && anchor != self.last_anchor_us {
-            self.anchors.push((t, pose.position, pose.orientation));
+            self.anchors.push((t, pose.clone()));
         }
         self.last_anchor_us = anchor;
         self.fused_all_anchor
@@ -494,8 +494,16 @@ enum Registration {
 }
 
 /// Where a frame of its own was re-anchored (see `Recorder::anchors`): the time, the
-/// estimate's pose there, and the reference's where it has one then.
-type Anchor = (f64, PoseAt, Option<PoseAt>);
+/// estimate's pose there with the position covariance and the horizontal protection
+/// level it was sent with (its own error is every later pose's, as at take-off), and
+/// the reference's pose where it has one then.
+struct Anchor {
+    t: f64,
+    pose: PoseAt,
+    cov: Matrix3<f64>,
+    hpl: f64,
+    reference: Option<PoseAt>,
+}
 type PoseAt = (Vector3<f64>, UnitQuaternion<f64>);
 
 #[allow(clippy::too_many_arguments)]
@@ -533,7 +541,8 @@ fn consistency(
     // error: its covariance counts too (the correlation between the two, which would
     // lessen it, is not known here).
     let registration_cov = if align { cov[ie[0]] } else { Matrix3::zeros() };
-    // From an anchor, the height's part only: the horizontal error there is nil.
+    // From an anchor, the height's part of the take-off registration (the horizontal
+    // one is the anchor's).
     let mut vertical_registration_cov = Matrix3::zeros();
     vertical_registration_cov[(2, 2)] = registration_cov[(2, 2)];
     // The anchor in force (see `Anchor`), by its index: the estimate registered to the
@@ -543,15 +552,21 @@ fn consistency(
         let anchor = pl
             .get(i)
             .and_then(|p| p.anchored_us)
-            .and_then(|_| anchors.iter().rposition(|a| a.0 <= e.t[k]));
+            .and_then(|_| anchors.iter().rposition(|a| a.t <= e.t[k]));
         if anchor != anchored {
             rot = match anchor {
                 Some(a) => {
                     // Where the reference was at the anchor; else (none then) at this
                     // pose, the first valid one after it.
-                    let (est, reference) = match anchors[a].2 {
-                        Some(reference) => (anchors[a].1, reference),
-                        None => ((e.p[k], e.q[k]), (r.p[k], r.q[k])),
+                    let (est, reference) = match anchors[a].reference {
+                        Some(reference) => (anchors[a].pose, reference),
+                        None => (
+                            (e.p[k], e.q[k]),
+                            (
+                                interpolated(reference, e.t[k], max_diff_s).unwrap_or(r.p[k]),
+                                r.q[k],
+                            ),
+                        ),
                     };
                     let mut at = register(
                         &est,
@@ -569,11 +584,13 @@ fn consistency(
             };
             anchored = anchor;
         }
-        let err = rot.apply(&e.p[k]) - r.p[k];
-        let registration = if anchored.is_some() {
-            vertical_registration_cov
-        } else {
-            registration_cov
+        // The reference where the pose was: between its samples on either side (a
+        // truth logged at 10 Hz is 0.4 m from the nearest sample at 4 m/s).
+        let rp = interpolated(reference, e.t[k], max_diff_s).unwrap_or(r.p[k]);
+        let err = rot.apply(&e.p[k]) - rp;
+        let registration = match anchored {
+            Some(a) => anchors[a].horizontal_cov() + vertical_registration_cov,
+            None => registration_cov,
         };
         // The reference's own uncertainty, in its frame, where it has one (GNSS, an
         // odometry's covariance): the difference of two estimates has both.
@@ -587,9 +604,12 @@ fn consistency(
         if let Some(p) = pl.get(i) {
             let e_own = rot.rotation.transpose() * err;
             let reg = pl.get(ie[0]).filter(|_| align);
-            let reg_h = reg.filter(|_| anchored.is_none());
+            let reg_h = match anchored {
+                Some(a) => anchors[a].hpl,
+                None => reg.map_or(0.0, |r| r.horizontal_m),
+            };
             let (h, v) = (
-                p.horizontal_m + reg_h.map_or(0.0, |r| r.horizontal_m),
+                p.horizontal_m + reg_h,
                 p.vertical_m + reg.map_or(0.0, |r| r.vertical_m),
             );
             let ratio = (e_own.xy().norm() / h.max(1e-9)).max(e_own.z.abs() / v.max(1e-9));
@@ -791,7 +811,46 @@ fn windowed(tr: &Trajectory, window: Option<(f64, f64)>) -> Trajectory {
 }
 
 /// The truth at each of `times`.
-/// The reference's pose nearest `t` within `max_diff_s`, if any.
+impl Anchor {
+    fn of(t: f64, pose: &FusedPose, reference: Option<PoseAt>) -> Self {
+        Self {
+            t,
+            pose: (pose.position, pose.orientation),
+            cov: pose.position_cov,
+            hpl: pose.protection.horizontal_m,
+            reference,
+        }
+    }
+
+    /// The horizontal block of the covariance the anchor pose was sent with.
+    fn horizontal_cov(&self) -> Matrix3<f64> {
+        let mut c = Matrix3::zeros();
+        c.fixed_view_mut::<2, 2>(0, 0)
+            .copy_from(&self.cov.fixed_view::<2, 2>(0, 0));
+        c
+    }
+}
+
+/// A reference is interpolated between samples at most this far apart, s.
+const INTERPOLATED_SPAN_S: f64 = 0.5;
+
+/// The reference's position at `t`, between its samples on either side (at most
+/// [`INTERPOLATED_SPAN_S`] apart), where one of them is within `max_diff_s` of it.
+fn interpolated(r: &Trajectory, t: f64, max_diff_s: f64) -> Option<Vector3<f64>> {
+    let j = r.t.partition_point(|&x| x < t);
+    if r.t.get(j) == Some(&t) {
+        return Some(r.p[j]);
+    }
+    let (t0, t1) = (*r.t.get(j.checked_sub(1)?)?, *r.t.get(j)?);
+    if (t - t0).min(t1 - t) > max_diff_s || t1 - t0 > INTERPOLATED_SPAN_S || t1 <= t0 {
+        return None;
+    }
+    let f = (t - t0) / (t1 - t0);
+    Some(r.p[j - 1] + (r.p[j] - r.p[j - 1]) * f)
+}
+
+/// The reference's pose nearest `t` within `max_diff_s`, if any (the position
+/// between its samples where it can be).
 fn reference_at(r: &Trajectory, t: f64, max_diff_s: f64) -> Option<PoseAt> {
     let i = r.t.partition_point(|&x| x < t);
     [i.checked_sub(1), Some(i)]
@@ -799,7 +858,7 @@ fn reference_at(r: &Trajectory, t: f64, max_diff_s: f64) -> Option<PoseAt> {
         .flatten()
         .filter(|&j| j < r.t.len() && (r.t[j] - t).abs() <= max_diff_s)
         .min_by(|&a, &b| (r.t[a] - t).abs().total_cmp(&(r.t[b] - t).abs()))
-        .map(|j| (r.p[j], r.q[j]))
+        .map(|j| (interpolated(r, t, max_diff_s).unwrap_or(r.p[j]), r.q[j]))
 }
 
 fn truth_at(
@@ -957,7 +1016,7 @@ fn score(
             let anchors: Vec<Anchor> = rec
                 .anchors
                 .iter()
-                .map(|&(ta, p, q)| (ta, (p, q), Some(truth(ta))))
+                .map(|(ta, p)| Anchor::of(*ta, p, Some(truth(*ta))))
                 .collect();
             consistency(
                 &t,
@@ -991,7 +1050,7 @@ fn score(
             let anchors: Vec<Anchor> = rec
                 .anchors
                 .iter()
-                .map(|&(ta, p, q)| (ta, (p, q), reference_at(r, ta, *max_diff_s)))
+                .map(|(ta, p)| Anchor::of(*ta, p, reference_at(r, *ta, *max_diff_s)))
                 .collect();
             consistency(
                 r,
@@ -1890,7 +1949,13 @@ mod reference_tests {
             let anchor = (k / 50) as f64 * 5.0;
             if k % 50 == 0 && k > 0 {
                 let q = UnitQuaternion::identity();
-                anchors.push((t, (e, q), Some((p, q))));
+                anchors.push(Anchor {
+                    t,
+                    pose: (e, q),
+                    cov: Matrix3::zeros(),
+                    hpl: 0.0,
+                    reference: Some((p, q)),
+                });
             }
             pl.push(Protection {
                 horizontal_m: 1.0,
