@@ -836,24 +836,30 @@ impl Ekf {
     /// velocity, kept in the old axes, turns with it, and so does every odometry
     /// alignment made in them (the position does not: the origin is placed where the
     /// vehicle is).
+    /// How the errors move when the frame turns by a small angle: the heading error by
+    /// it, the velocity (kept in the frame's axes) across itself, and every odometry
+    /// alignment made in those axes by it too. An odometry aligned in the old axes is
+    /// off north by the same angle: a camera aligned before the first fix, its
+    /// alignment error left at 0.6°, held the heading to the old frame's: the yaw
+    /// crept 7.5° towards north in 16 s with σ 0.6°, and the GNSS was excluded for
+    /// disagreeing with the camera (randomised draw 251: 312 poses beyond 5σ).
+    fn frame_turn(&self) -> DVector<f64> {
+        let v = self.vel();
+        let mut j = DVector::zeros(self.n());
+        j[IDX_YAW] = 1.0;
+        j[IDX_V] = -v.y;
+        j[IDX_V + 1] = v.x;
+        for &(_, i) in &self.align_yaws {
+            j[i] = 1.0;
+        }
+        j
+    }
+
     pub fn add_heading_uncertainty(&mut self, var: f64) {
         if !(var.is_finite() && var > 0.0) {
             return;
         }
-        let n = self.n();
-        let v = self.vel();
-        let mut j = DVector::zeros(n);
-        j[IDX_YAW] = 1.0;
-        j[IDX_V] = -v.y;
-        j[IDX_V + 1] = v.x;
-        // An odometry aligned in the old axes is off north by the same angle: its
-        // alignment error turns with the frame. A camera aligned before the first fix,
-        // its alignment error left at 0.6°, held the heading to the old frame's: the
-        // yaw crept 7.5° towards north in 16 s with σ 0.6°, and the GNSS was excluded
-        // for disagreeing with the camera (randomised draw 251: 312 poses beyond 5σ).
-        for &(_, i) in &self.align_yaws {
-            j[i] = 1.0;
-        }
+        let j = self.frame_turn();
         self.p += &j * j.transpose() * var;
         self.symmetrise();
     }
@@ -1040,15 +1046,8 @@ impl Ekf {
     /// take the position's move and error. The other states keep their uncertainty.
     pub fn anchor_frame(&mut self, at: [f64; 2]) {
         let n = self.n();
-        let v = self.vel();
         // Heading: ε' = ε − j·ε_ψ, j the direction a turn of the frame moves the errors.
-        let mut j = DVector::zeros(n);
-        j[IDX_YAW] = 1.0;
-        j[IDX_V] = -v.y;
-        j[IDX_V + 1] = v.x;
-        for &(_, i) in &self.align_yaws {
-            j[i] = 1.0;
-        }
+        let j = self.frame_turn();
         let mut t: DMatrix<f64> = DMatrix::identity(n, n);
         for i in 0..n {
             t[(i, IDX_YAW)] -= j[i];
