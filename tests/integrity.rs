@@ -271,6 +271,40 @@ fn a_flight_on_flow_alone_is_bounded_from_its_last_anchor() {
     assert_available_and_consistent(103, 0.9);
 }
 
+/// Laps at 7.7 m on a flow and a barometer under a compass swinging ±11° (draw 630)
+/// were re-anchored at 262 s, and in the next 160 s drifted 20 m north of the anchor
+/// with σ 5 m (71 % of the north poses within 3σ): the heading's error, about as
+/// often as a lap, turned every lap's track the same way, where a heading that wanders
+/// in time cancels over a closed lap. A position no source measures drifts by up to
+/// `dead_reckoning_drift` (2 %) of the distance flown: within 3σ, as available.
+#[test]
+fn a_heading_error_that_repeats_with_the_laps_is_bounded_by_the_distance_flown() {
+    assert_available_and_consistent(630, 0.95);
+}
+
+/// A flow dark for 20 s just as the bound neared the anchoring fraction took it past
+/// the alert limit (seed 2 draw 228, laps at 4.6 m/s; seed 3 draw 104, a climb to 12
+/// m), and the frame was never anchored again: invalid for the rest of the flight
+/// while the error was a metre (38 % and 66 % valid airborne). Relative navigation
+/// starts again from a bound of up to twice the limit once the flow reads.
+#[test]
+fn a_flow_dark_past_the_alert_limit_is_anchored_again_when_it_reads() {
+    for (seed, i) in [(2, 228), (3, 104)] {
+        let r = run_draw(seed, i, EstimatorConfig::default(), HealthConfig::default());
+        let valid = r.availability.airborne_valid_fraction.unwrap_or(0.0);
+        println!(
+            "seed {seed} draw {i}: {:.1} % valid airborne",
+            100.0 * valid
+        );
+        assert!(
+            valid >= 0.85,
+            "seed {seed} draw {i}: {:.1} % valid",
+            100.0 * valid
+        );
+        assert_within_3_sigma(i, &without_failures(i, r));
+    }
+}
+
 /// A climb on flow whose sensor is quieter than EKF2's 0.15 rad/s for any sensor
 /// (draw 927): fused as configured, every sample's noise let the position's σ grow as a
 /// random walk several times the error's, and the pose was invalid on its protection

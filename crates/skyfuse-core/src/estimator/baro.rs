@@ -17,8 +17,11 @@ use crate::sample::Baro;
 pub const RESTART_AFTER_US: i64 = 5_000_000;
 /// The offset block's name in the filter: apart from the odometry sources' blocks.
 pub fn block_name(source: &str) -> String {
-    format!("baro:{source}")
+    format!("{BLOCK_PREFIX}{source}")
 }
+
+/// What a barometer's offset block's name starts with.
+pub const BLOCK_PREFIX: &str = "baro:";
 
 /// Per barometer: the altitude that reads as the filter's height zero, and since when
 /// its samples have been rejected.

@@ -96,6 +96,13 @@ pub struct Ekf {
     /// The attitude's heading error ψ_a: stationary 1σ (rad) and correlation time (s).
     pub yaw_error_std: f64,
     pub yaw_error_tau_s: f64,
+    /// Index of the drift per metre flown (east, and north at the next), if the filter
+    /// has it: the position moves by it times the horizontal speed. A constant of the
+    /// flight, considered by every update, never corrected (see
+    /// `config::DEFAULT_DEAD_RECKONING_DRIFT`).
+    pub drift: Option<usize>,
+    /// The drift is a state still (a GNSS fix ends it; see [`Self::end_drift`]).
+    drifting: bool,
     /// (source id, index) of each aiding source's unknown delay τ (s): it measures
     /// the state of `τ` ago, `h(x(t − τ)) ≈ h(x) − τ·dh/dt`.
     pub delays: Vec<(String, usize)>,
@@ -155,6 +162,8 @@ impl Ekf {
             gnss_bias_tau_s: 1.0,
             yaw_error_std: 0.0,
             yaw_error_tau_s: 1.0,
+            drift: None,
+            drifting: false,
             velocity_tau_s: f64::INFINITY,
             delays: Vec::new(),
             delay_rw: 0.0,
@@ -192,6 +201,10 @@ impl Ekf {
         for (s, i) in &self.align_yaws {
             names[*i] = format!("{s}.align_yaw");
         }
+        if let Some(i) = self.drift {
+            names[i] = "drift_e".into();
+            names[i + 1] = "drift_n".into();
+        }
         names
     }
 
@@ -210,6 +223,44 @@ impl Ekf {
         self.yaw_error_std = std;
         self.yaw_error_tau_s = tau_s;
         self.p[(IDX_YAW, IDX_YAW)] = prior_std * prior_std;
+    }
+
+    /// The position drifts by up to `std` (1σ per axis) per metre flown, a constant of
+    /// the flight (see [`Self::drift`]).
+    pub fn add_drift(&mut self, std: f64) {
+        if !(std.is_finite() && std > 0.0) || self.drift.is_some() {
+            return;
+        }
+        let n = self.n();
+        self.grow(2);
+        self.p[(n, n)] = std * std;
+        self.p[(n + 1, n + 1)] = std * std;
+        self.drift = Some(n);
+        self.drifting = true;
+    }
+
+    /// The drift's index while it is a state.
+    fn drift_state(&self) -> Option<usize> {
+        self.drift.filter(|_| self.drifting)
+    }
+
+    /// Whether an odometry (a camera) has an offset block: it measures the position.
+    /// A barometer's block measures the height alone.
+    fn has_odometry(&self) -> bool {
+        self.blocks
+            .iter()
+            .any(|(s, _)| !s.starts_with(super::baro::BLOCK_PREFIX))
+    }
+
+    /// A position source now measures where the vehicle is (GNSS anchors the frame on
+    /// Earth): the drift is its business, not a state's. Held at nil from here.
+    pub fn end_drift(&mut self) {
+        if let Some(i) = self.drift_state() {
+            self.x[i] = 0.0;
+            self.x[i + 1] = 0.0;
+            self.forget(&[i, i + 1], 0.0);
+            self.drifting = false;
+        }
     }
 
     /// The index of `source`'s compensation gyro bias error (x, and y at the next),
@@ -423,7 +474,16 @@ impl Ekf {
         } else {
             1.0
         };
-        let p = self.pos() + self.vel() * dt + a * (0.5 * dt * dt);
+        // Metres flown over the step, which the drift per metre moves the position by
+        // (where a camera measures the position, its offset's random walk is the
+        // drift: both, and a flow and a camera's fused track went 0.03 → 0.23 m off).
+        let flown = self.x[IDX_V].hypot(self.x[IDX_V + 1]) * dt;
+        let drift = self.drift_state().filter(|_| !self.has_odometry());
+        let mut p = self.pos() + self.vel() * dt + a * (0.5 * dt * dt);
+        if let Some(i) = drift {
+            p.x += self.x[i] * flown;
+            p.y += self.x[i + 1] * flown;
+        }
         let v = self.vel() * phi_v + a * dt;
         self.x.fixed_rows_mut::<3>(IDX_P).copy_from(&p);
         self.x.fixed_rows_mut::<3>(IDX_V).copy_from(&v);
@@ -449,6 +509,7 @@ impl Ekf {
             phi,
             phi_yaw,
             phi_v,
+            drift: drift.map(|i| (i, flown)),
         };
         f.apply_to_columns(self.p.as_mut_slice(), n);
         f.apply_to_rows(self.p.as_mut_slice(), n);
@@ -569,9 +630,13 @@ impl Ekf {
                     k[c * n + j] = row[c];
                 }
             }
-            // Consider states are not corrected: their gain rows are zero.
+            // Consider states are not corrected: their gain rows are zero. Nor is the
+            // drift per metre, by anything: a flow and an IMU do not see it, and the
+            // positions given without a camera or a GNSS (an anchor, a hold) would
+            // teach it wrong.
+            let drift = self.drift_state().map(|i| [i, i + 1]);
             let consider = m.considered();
-            for &j in consider {
+            for &j in consider.iter().chain(drift.iter().flatten()) {
                 for c in 0..M {
                     k[c * n + j] = 0.0;
                 }
@@ -585,7 +650,7 @@ impl Ekf {
                 }
                 *xj += dx;
             }
-            if !consider.is_empty() {
+            if !consider.is_empty() || drift.is_some() {
                 // A gain that is not optimal (Schmidt's): the full Joseph form, P − K H P
                 // − (K H P)ᵀ + K S Kᵀ, S = L Lᵀ.
                 let l = chol.l();
@@ -1091,6 +1156,8 @@ struct Transition {
     phi_yaw: f64,
     /// The velocity's decay over the step (1 while an IMU drives the prediction).
     phi_v: f64,
+    /// The drift per metre's index and the metres flown over the step: p += d·flown.
+    drift: Option<(usize, f64)>,
 }
 
 impl Transition {
@@ -1115,7 +1182,11 @@ impl Transition {
         let v = Vector3::new(m[at(IDX_V)], m[at(IDX_V + 1)], m[at(IDX_V + 2)]);
         let ba = Vector3::new(m[at(IDX_BA)], m[at(IDX_BA + 1)], m[at(IDX_BA + 2)]);
         let yaw = m[at(IDX_YAW)];
-        let dp = v * self.dt + self.p_ba * ba + self.p_yaw * yaw;
+        let mut dp = v * self.dt + self.p_ba * ba + self.p_yaw * yaw;
+        if let Some((i, flown)) = self.drift {
+            dp.x += m[at(i)] * flown;
+            dp.y += m[at(i + 1)] * flown;
+        }
         let dv = self.v_ba * ba + self.v_yaw * yaw;
         for i in 0..3 {
             m[at(IDX_P + i)] += dp[i];
@@ -1604,6 +1675,77 @@ mod tests {
         for w in &kept {
             assert!((var(&ekf, w) - var(&before, w)).abs() < 1e-9, "{w}");
         }
+    }
+
+    /// A drift per metre is a constant of the flight: over closed laps (5 m/s circles of
+    /// 10 s on an IMU) the position's 1σ grows by σ·50 m a lap, as the distance flown,
+    /// not back to nothing as the displacement. No measurement corrects it; an anchor
+    /// takes the position's error and keeps the drift's (it grows again from there at
+    /// the same rate); a camera's offset takes it over; a frame on Earth ends it.
+    #[test]
+    fn a_drift_per_metre_grows_with_the_distance_flown() {
+        let (speed, lap_s, dt, std) = (5.0, 10.0, 0.01, 0.02);
+        let w = 2.0 * std::f64::consts::PI / lap_s;
+        let lap = |ekf: &mut Ekf| {
+            for k in 0..(lap_s / dt).round() as usize {
+                let h = w * k as f64 * dt;
+                let rot = yaw_rotation(h);
+                let accel = Vector3::new(-h.sin(), h.cos(), 0.0) * speed * w;
+                let f_body = rot.transpose() * (accel + Vector3::z() * GRAVITY);
+                ekf.predict(f_body, &rot, dt, 0.0, 0.0, |_| 0.0);
+            }
+            [0, 1].map(|a| ekf.p[(IDX_P + a, IDX_P + a)].sqrt())
+        };
+        let tiny = Vector3::repeat(1e-12);
+        let mut ekf = Ekf::new(
+            Vector3::zeros(),
+            Vector3::new(speed, 0.0, 0.0),
+            tiny,
+            tiny,
+            0.0,
+        );
+        ekf.add_drift(std);
+        let per_lap = std * speed * lap_s;
+        for k in 1..=3 {
+            for sigma in lap(&mut ekf) {
+                let expected = k as f64 * per_lap;
+                assert!(
+                    (sigma / expected - 1.0).abs() < 0.01,
+                    "lap {k}: {sigma} against {expected}"
+                );
+            }
+        }
+        let i = ekf.drift.expect("drift states");
+        let m = Measurement::of_states(IDX_P, 2, &Vector3::zeros(), &(Matrix3::identity() * 0.01));
+        assert!(ekf.update(&m, 1e9, true).accepted);
+        assert!(
+            (ekf.p[(i, i)] - std * std).abs() < 1e-15,
+            "{}",
+            ekf.p[(i, i)]
+        );
+        ekf.anchor_frame([0.0, 0.0]);
+        for sigma in lap(&mut ekf) {
+            assert!(
+                (sigma / per_lap - 1.0).abs() < 0.01,
+                "from the anchor: {sigma}"
+            );
+        }
+        // A lap adds nothing to the position's σ.
+        let holds = |ekf: &mut Ekf, what: &str| {
+            let before = [0, 1].map(|a| ekf.p[(IDX_P + a, IDX_P + a)].sqrt());
+            let after = lap(ekf);
+            for a in 0..2 {
+                assert!(
+                    (after[a] - before[a]).abs() < 1e-6,
+                    "{what}: {after:?} from {before:?}"
+                );
+            }
+        };
+        let mut camera = ekf.clone();
+        camera.start_block("t265");
+        holds(&mut camera, "a camera");
+        ekf.end_drift();
+        holds(&mut ekf, "ended");
     }
 
     /// A flow's compensation gyro bias error fades with its correlation time where the

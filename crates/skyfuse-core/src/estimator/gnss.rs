@@ -116,6 +116,7 @@ pub fn process(core: &mut Core, ctx: &Ctx, t: i64, source: &str, fix: &GnssFix) 
                         bank.each(|ekf| {
                             ekf.add_frame_uncertainty(&cov);
                             ekf.add_heading_uncertainty(yaw_var);
+                            ekf.end_drift();
                         });
                     }
                     core.wrls.add_frame_uncertainty(&cov);
@@ -346,12 +347,30 @@ fn unchecked_doubt(
     } else {
         Vector3::zeros()
     };
+    // Of the jump, what the dead reckoning could have carried the estimate over the gap
+    // on an accelerometer off by the fault allowance (½·a·T², `dead_reckoning_fault_
+    // mps2`) is the estimate's; the rest, past the cap, is the receiver's, 1σ: no IMU
+    // explains it. A GNSS-only vehicle whose receiver stepped 40 m was reset onto it a
+    // second after its last fix and sent valid 39 m off the truth with σ 3.9 m; 30 s
+    // of a 2° tilt error carry the IMU's own 135 m.
+    let gap_s = core
+        .ground
+        .last_h_aiding
+        .map_or(f64::INFINITY, |l| (t - l) as f64 * 1e-6);
+    let carried = 0.5 * cfg.dead_reckoning_fault_mps2 * gap_s * gap_s;
+    let size = jump.xy().norm();
+    let receivers = if size > carried {
+        jump * ((size - carried) / size)
+    } else {
+        Vector3::zeros()
+    };
     let taught = |a: usize| {
         (prior[(a, a)] - cov[(a, a)])
             .max(0.0)
             .sqrt()
             .max(jump[a])
             .min(cap)
+            .max(receivers[a])
     };
     Vector3::new(taught(0), taught(1), 0.0)
 }

@@ -1027,6 +1027,9 @@ impl Core {
                 super::config::OWN_FRAME_YAW_STD.min(cfg.yaw_error_std)
             };
             ekf.set_yaw_error_model(cfg.yaw_error_std, cfg.yaw_error_tau_s, yaw_prior);
+            if !geographic {
+                ekf.add_drift(cfg.dead_reckoning_drift);
+            }
             if geographic {
                 // Started from a fix: the ground's height in that frame is as uncertain
                 // as the fix's altitude.
@@ -1098,7 +1101,7 @@ impl Core {
         let bias_rw = cfg.accel_bias_rw;
         let drift = |s: &str| {
             // A barometer's offset block is named `baro:<source>`.
-            let (id, default) = match s.strip_prefix("baro:") {
+            let (id, default) = match s.strip_prefix(super::baro::BLOCK_PREFIX) {
                 Some(id) => (id, cfg.baro_drift_rw),
                 None => (s, cfg.vo_drift_rw),
             };

@@ -1438,7 +1438,17 @@ fn the_only_position_source_refused_is_reset_to_not_locked_out() {
     assert_eq!(resets.len(), 1, "{resets:?}");
     assert!((30.0..35.0).contains(&resets[0].0), "{resets:?}");
     assert!(accepted > before + 100, "{accepted} vs {before}");
-    assert!(est.pose().is_some_and(|p| p.valid));
+    // The receiver is the one that stepped: the truth is where the IMU had it, 40 m
+    // south. A jump that large is the receiver's doubt: the pose is not sent valid on
+    // it, and its σ holds the truth.
+    let pose = est.pose().expect("a pose");
+    let truth = samples.last().expect("samples").1.position;
+    let (north, sigma) = (pose.position.y - truth.y, pose.position_cov[(1, 1)].sqrt());
+    println!(
+        "{north:.1} m north of the truth, σ {sigma:.1} m, valid {}",
+        pose.valid
+    );
+    assert!(!pose.valid && north.abs() < 3.0 * sigma);
 }
 
 /// A receiver's multipath that came in slowly and went at once: the filter followed
