@@ -347,15 +347,15 @@ fn unchecked_doubt(
     } else {
         Vector3::zeros()
     };
-    // Of the jump, what the dead reckoning could have carried the estimate over the gap
-    // on an accelerometer off by the fault allowance (½·a·T², `dead_reckoning_fault_
-    // mps2`) is the estimate's; the rest, past the cap, is the receiver's, 1σ: no IMU
+    // Of the jump, what the dead reckoning could have carried the estimate since the
+    // last fix on an accelerometer off by the fault allowance (½·a·T², `dead_reckoning_
+    // fault_mps2`; a velocity since does not place it) is the estimate's; the rest, past the cap, is the receiver's, 1σ: no IMU
     // explains it. A GNSS-only vehicle whose receiver stepped 40 m was reset onto it a
     // second after its last fix and sent valid 39 m off the truth with σ 3.9 m; 30 s
     // of a 2° tilt error carry the IMU's own 135 m.
     let gap_s = core
-        .ground
-        .last_h_aiding
+        .gnss
+        .last_fused
         .map_or(f64::INFINITY, |l| (t - l) as f64 * 1e-6);
     let carried = 0.5 * cfg.dead_reckoning_fault_mps2 * gap_s * gap_s;
     let size = jump.xy().norm();
