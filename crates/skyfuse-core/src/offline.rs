@@ -506,6 +506,26 @@ struct Anchor {
 }
 type PoseAt = (Vector3<f64>, UnitQuaternion<f64>);
 
+impl Anchor {
+    fn of(t: f64, pose: &FusedPose, reference: Option<PoseAt>) -> Self {
+        Self {
+            t,
+            pose: (pose.position, pose.orientation),
+            cov: pose.position_cov,
+            hpl: pose.protection.horizontal_m,
+            reference,
+        }
+    }
+
+    /// The horizontal block of the covariance the anchor pose was sent with.
+    fn horizontal_cov(&self) -> Matrix3<f64> {
+        let mut c = Matrix3::zeros();
+        c.fixed_view_mut::<2, 2>(0, 0)
+            .copy_from(&self.cov.fixed_view::<2, 2>(0, 0));
+        c
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 fn consistency(
     reference: &Trajectory,
@@ -553,6 +573,9 @@ fn consistency(
             .get(i)
             .and_then(|p| p.anchored_us)
             .and_then(|_| anchors.iter().rposition(|a| a.t <= e.t[k]));
+        // The reference where the pose was: between its samples on either side (a
+        // truth logged at 10 Hz is 0.4 m from the nearest sample at 4 m/s).
+        let rp = interpolated(reference, e.t[k], max_diff_s).unwrap_or(r.p[k]);
         if anchor != anchored {
             rot = match anchor {
                 Some(a) => {
@@ -560,13 +583,7 @@ fn consistency(
                     // pose, the first valid one after it.
                     let (est, reference) = match anchors[a].reference {
                         Some(reference) => (anchors[a].pose, reference),
-                        None => (
-                            (e.p[k], e.q[k]),
-                            (
-                                interpolated(reference, e.t[k], max_diff_s).unwrap_or(r.p[k]),
-                                r.q[k],
-                            ),
-                        ),
+                        None => ((e.p[k], e.q[k]), (rp, r.q[k])),
                     };
                     let mut at = register(
                         &est,
@@ -584,9 +601,6 @@ fn consistency(
             };
             anchored = anchor;
         }
-        // The reference where the pose was: between its samples on either side (a
-        // truth logged at 10 Hz is 0.4 m from the nearest sample at 4 m/s).
-        let rp = interpolated(reference, e.t[k], max_diff_s).unwrap_or(r.p[k]);
         let err = rot.apply(&e.p[k]) - rp;
         let registration = match anchored {
             Some(a) => anchors[a].horizontal_cov() + vertical_registration_cov,
@@ -810,27 +824,6 @@ fn windowed(tr: &Trajectory, window: Option<(f64, f64)>) -> Trajectory {
     out
 }
 
-/// The truth at each of `times`.
-impl Anchor {
-    fn of(t: f64, pose: &FusedPose, reference: Option<PoseAt>) -> Self {
-        Self {
-            t,
-            pose: (pose.position, pose.orientation),
-            cov: pose.position_cov,
-            hpl: pose.protection.horizontal_m,
-            reference,
-        }
-    }
-
-    /// The horizontal block of the covariance the anchor pose was sent with.
-    fn horizontal_cov(&self) -> Matrix3<f64> {
-        let mut c = Matrix3::zeros();
-        c.fixed_view_mut::<2, 2>(0, 0)
-            .copy_from(&self.cov.fixed_view::<2, 2>(0, 0));
-        c
-    }
-}
-
 /// A reference is interpolated between samples at most this far apart, s.
 const INTERPOLATED_SPAN_S: f64 = 0.5;
 
@@ -861,6 +854,7 @@ fn reference_at(r: &Trajectory, t: f64, max_diff_s: f64) -> Option<PoseAt> {
         .map(|j| (interpolated(r, t, max_diff_s).unwrap_or(r.p[j]), r.q[j]))
 }
 
+/// The truth at each of `times`.
 fn truth_at(
     truth: &dyn Fn(f64) -> (Vector3<f64>, UnitQuaternion<f64>),
     times: &[f64],

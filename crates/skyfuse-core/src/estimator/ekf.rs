@@ -98,8 +98,8 @@ pub struct Ekf {
     pub yaw_error_tau_s: f64,
     /// Index of the drift per metre flown (east, and north at the next), if the filter
     /// has it: the position moves by it times the horizontal speed. A constant of the
-    /// flight, considered by every update, never corrected (see
-    /// `config::DEFAULT_DEAD_RECKONING_DRIFT`).
+    /// flight, considered by every update, never corrected, so its estimate stays nil
+    /// and only its covariance moves (see `config::DEFAULT_DEAD_RECKONING_DRIFT`).
     pub drift: Option<usize>,
     /// The drift is a state still (a GNSS fix ends it; see [`Self::end_drift`]).
     drifting: bool,
@@ -256,8 +256,6 @@ impl Ekf {
     /// Earth): the drift is its business, not a state's. Held at nil from here.
     pub fn end_drift(&mut self) {
         if let Some(i) = self.drift_state() {
-            self.x[i] = 0.0;
-            self.x[i + 1] = 0.0;
             self.forget(&[i, i + 1], 0.0);
             self.drifting = false;
         }
@@ -474,16 +472,13 @@ impl Ekf {
         } else {
             1.0
         };
-        // Metres flown over the step, which the drift per metre moves the position by
-        // (where a camera measures the position, its offset's random walk is the
-        // drift: both, and a flow and a camera's fused track went 0.03 → 0.23 m off).
+        // Metres flown over the step, by which the drift per metre moves the position's
+        // uncertainty (its estimate is nil). Where a camera measures the position, its
+        // offset's random walk is the drift: both, and a flow and a camera's fused
+        // track went 0.03 → 0.23 m off.
         let flown = self.x[IDX_V].hypot(self.x[IDX_V + 1]) * dt;
         let drift = self.drift_state().filter(|_| !self.has_odometry());
-        let mut p = self.pos() + self.vel() * dt + a * (0.5 * dt * dt);
-        if let Some(i) = drift {
-            p.x += self.x[i] * flown;
-            p.y += self.x[i + 1] * flown;
-        }
+        let p = self.pos() + self.vel() * dt + a * (0.5 * dt * dt);
         let v = self.vel() * phi_v + a * dt;
         self.x.fixed_rows_mut::<3>(IDX_P).copy_from(&p);
         self.x.fixed_rows_mut::<3>(IDX_V).copy_from(&v);

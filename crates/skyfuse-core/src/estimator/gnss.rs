@@ -348,11 +348,12 @@ fn unchecked_doubt(
         Vector3::zeros()
     };
     // Of the jump, what the dead reckoning could have carried the estimate since the
-    // last fix on an accelerometer off by the fault allowance (½·a·T², `dead_reckoning_
-    // fault_mps2`; a velocity since does not place it) is the estimate's; the rest, past the cap, is the receiver's, 1σ: no IMU
-    // explains it. A GNSS-only vehicle whose receiver stepped 40 m was reset onto it a
-    // second after its last fix and sent valid 39 m off the truth with σ 3.9 m; 30 s
-    // of a 2° tilt error carry the IMU's own 135 m.
+    // last fix on an accelerometer off by the fault allowance is the estimate's (½·a·T²,
+    // `dead_reckoning_fault_mps2`; a velocity fused since does not place it). The
+    // rest, past the cap, is the receiver's, 1σ: no IMU explains it. A GNSS-only
+    // vehicle whose receiver stepped 40 m was reset onto it a second after its last
+    // fix and sent valid 39 m off the truth with σ 3.9 m; 30 s of a 2° tilt error carry
+    // the IMU's own 135 m.
     let gap_s = core
         .gnss
         .last_fused

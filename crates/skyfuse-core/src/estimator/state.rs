@@ -1027,13 +1027,12 @@ impl Core {
                 super::config::OWN_FRAME_YAW_STD.min(cfg.yaw_error_std)
             };
             ekf.set_yaw_error_model(cfg.yaw_error_std, cfg.yaw_error_tau_s, yaw_prior);
-            if !geographic {
-                ekf.add_drift(cfg.dead_reckoning_drift);
-            }
             if geographic {
                 // Started from a fix: the ground's height in that frame is as uncertain
                 // as the fix's altitude.
                 ekf.p[(ekf::IDX_TERRAIN, ekf::IDX_TERRAIN)] = pos_var.z;
+            } else {
+                ekf.add_drift(cfg.dead_reckoning_drift);
             }
             self.ekf = Some(Bank::new(ekf));
             self.integrity = IntegrityState::default();
